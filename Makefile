@@ -1,0 +1,36 @@
+# Two commands on a fresh machine: `make train` and `make test`.
+# Both create .venv and install what is missing first. torch is installed on its own,
+# pinned to the CPU wheel unless a GPU is present, so setup never pulls a multi-GB CUDA
+# build onto a machine that cannot use it.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip
+TORCH_CPU ?= torch==2.13.0
+STAMP  := $(VENV)/.installed
+
+.PHONY: venv train test bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	if command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; then \
+		$(PIP) install -q "torch>=2.4,<2.15"; \
+	else \
+		$(PY) -c "import torch" 2>/dev/null || $(PIP) install -q "$(TORCH_CPU)"; \
+	fi
+	$(PIP) install -q -e ".[test]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+train: $(STAMP)
+	$(PY) train.py $(ARGS)
+
+test: $(STAMP)
+	$(PY) -m pytest -q $(ARGS)
+
+bench: $(STAMP)
+	$(VENV)/bin/warp-terrain bench --json
+
+clean:
+	rm -rf $(VENV) outputs multirun .pytest_cache

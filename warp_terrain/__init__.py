@@ -1,0 +1,50 @@
+"""warp-terrain: learn to fill in off-road elevation maps from simulated LIDAR.
+
+Warp kernels generate terrains and ray-cast LIDAR scans on the device; the results reach
+PyTorch zero-copy. The public API (names fixed by the design contract):
+
+- ``fractal_heightfield``: batched fBm Perlin heightfields
+- ``LidarConfig``, ``lidar_preset``: sensor patterns with published vertical-angle tables
+- ``cast_scans``: LIDAR scans of heightfields, in each sensor frame
+- ``project_points``: point clouds to elevation maps and observation masks
+- ``generate_batch``: training pairs (scan, mask, target) from a config
+"""
+
+import os as _os
+
+import warp as _wp
+
+# Warp prints its banner and every module compile; keep a library quiet unless asked.
+if not _os.environ.get("WARP_TERRAIN_VERBOSE"):
+    _wp.config.log_level = _wp.LOG_WARNING
+
+from .sim import (  # noqa: E402
+    Batch,
+    DataConfig,
+    LidarConfig,
+    ObstacleConfig,
+    SimConfig,
+    TerrainConfig,
+    cast_scans,
+    fractal_heightfield,
+    generate_batch,
+    lidar_preset,
+    project_points,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Batch",
+    "DataConfig",
+    "LidarConfig",
+    "ObstacleConfig",
+    "SimConfig",
+    "TerrainConfig",
+    "__version__",
+    "cast_scans",
+    "fractal_heightfield",
+    "generate_batch",
+    "lidar_preset",
+    "project_points",
+]

@@ -1,0 +1,25 @@
+"""The simulator: terrains, LIDAR scans and elevation maps, launched as Warp kernels."""
+
+from .batch import Batch, DataConfig, SimConfig, as_sim_config, generate_batch
+from .device import resolve_device
+from .lidar import LidarConfig, lidar_preset, lidar_preset_names
+from .projection import project_points
+from .scan import cast_scans
+from .terrain import ObstacleConfig, TerrainConfig, fractal_heightfield
+
+__all__ = [
+    "Batch",
+    "DataConfig",
+    "LidarConfig",
+    "ObstacleConfig",
+    "SimConfig",
+    "TerrainConfig",
+    "as_sim_config",
+    "cast_scans",
+    "fractal_heightfield",
+    "generate_batch",
+    "lidar_preset",
+    "lidar_preset_names",
+    "project_points",
+    "resolve_device",
+]

@@ -1,0 +1,46 @@
+"""The ground-truth elevation map: the true surface averaged over each map cell.
+
+Each map cell averages ``samples x samples`` points of the triangulated surface placed at the
+centres of a regular sub-grid of the cell, so obstacle edges cut through a cell give the
+partial height they should and a plane gives its exact value at the cell's centre. Heights are
+in the sensor frame (minus the sensor's world height); the augmentation transform of the sample
+is undone to find where a map cell lies on the terrain.
+"""
+
+import warp as wp
+
+from .frames import dihedral_invert, sample_transform
+from .heightfield import surface_height
+
+
+@wp.kernel
+def cell_mean_heights(
+    heights: wp.array3d(dtype=float),
+    cell: float,
+    sensor_z: wp.array(dtype=float),
+    map_cell: float,
+    samples: int,
+    seed: int,
+    augment: int,
+    target: wp.array4d(dtype=float),
+    target_min: wp.array(dtype=float),
+    target_max: wp.array(dtype=float),
+):
+    b, p, q = wp.tid()
+    H = heights.shape[1]
+    W = heights.shape[2]
+    S = target.shape[2]
+    half = 0.5 * float(S - 1)
+    d = sample_transform(seed, b, augment)
+    step = 1.0 / float(samples)
+    acc = float(0.0)
+    for si in range(samples):
+        for sj in range(samples):
+            x = (float(p) - half - 0.5 + (float(si) + 0.5) * step) * map_cell
+            y = (float(q) - half - 0.5 + (float(sj) + 0.5) * step) * map_cell
+            w = dihedral_invert(d, wp.vec2(x, y))
+            acc += surface_height(heights, b, w[0] / cell + 0.5 * float(H - 1), w[1] / cell + 0.5 * float(W - 1))
+    m = acc * step * step - sensor_z[b]
+    target[b, 0, p, q] = m
+    wp.atomic_min(target_min, b, m)
+    wp.atomic_max(target_max, b, m)

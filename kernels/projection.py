@@ -1,0 +1,82 @@
+"""Ground projection: LIDAR points binned into elevation maps, and image noise.
+
+Point (x, y, z) (sensor frame) falls in map cell ``(round(x / map_cell + (S-1)/2),
+round(y / map_cell + (S-1)/2))``; a cell's height is the mean z of its points and its mask is 1
+when it got at least one. Non-finite points and points outside the map are ignored.
+"""
+
+import warp as wp
+
+from .rng import STREAM_IMAGE_NOISE, stream_state
+
+
+@wp.kernel
+def bin_points(
+    points: wp.array2d(dtype=wp.vec3),
+    map_cell: float,
+    height_sum: wp.array3d(dtype=float),
+    count: wp.array3d(dtype=int),
+    height_max: wp.array3d(dtype=float),
+):
+    b, n = wp.tid()
+    p = points[b, n]
+    if not (wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2])):
+        return
+    S = height_sum.shape[1]
+    half = 0.5 * float(S - 1)
+    fi = wp.floor(p[0] / map_cell + half + 0.5)
+    fj = wp.floor(p[1] / map_cell + half + 0.5)
+    # compare as floats so that huge coordinates cannot overflow an int
+    if fi < 0.0 or fj < 0.0 or fi >= float(S) or fj >= float(S):
+        return
+    i = int(fi)
+    j = int(fj)
+    wp.atomic_add(height_sum, b, i, j, p[2])
+    wp.atomic_add(count, b, i, j, 1)
+    wp.atomic_max(height_max, b, i, j, p[2])
+
+
+@wp.kernel
+def finish_maps(
+    height_sum: wp.array3d(dtype=float),
+    count: wp.array3d(dtype=int),
+    height_max: wp.array3d(dtype=float),
+    fill: float,
+    height: wp.array4d(dtype=float),
+    top: wp.array4d(dtype=float),
+    mask: wp.array4d(dtype=float),
+):
+    """Mean and max height per observed cell; ``fill`` and mask 0 where nothing landed."""
+    b, i, j = wp.tid()
+    n = count[b, i, j]
+    if n > 0:
+        height[b, 0, i, j] = height_sum[b, i, j] / float(n)
+        top[b, 0, i, j] = height_max[b, i, j]
+        mask[b, 0, i, j] = 1.0
+    else:
+        height[b, 0, i, j] = fill
+        top[b, 0, i, j] = fill
+        mask[b, 0, i, j] = 0.0
+
+
+@wp.kernel
+def add_image_noise(
+    seed: int,
+    noise: float,
+    height_range: wp.array(dtype=float),
+    mask: wp.array4d(dtype=float),
+    height: wp.array4d(dtype=float),
+):
+    """The paper's "x% noise": Gaussian noise of ``noise`` times the sample's height range,
+    added to observed cells only."""
+    b, i, j = wp.tid()
+    if mask[b, 0, i, j] > 0.0:
+        S = height.shape[3]
+        state = stream_state(seed, b, STREAM_IMAGE_NOISE, i * S + j)
+        height[b, 0, i, j] = height[b, 0, i, j] + noise * height_range[b] * wp.randn(state)
+
+
+@wp.kernel
+def height_range(lo: wp.array(dtype=float), hi: wp.array(dtype=float), span: wp.array(dtype=float)):
+    b = wp.tid()
+    span[b] = hi[b] - lo[b]

@@ -1,0 +1,161 @@
+"""Training pairs: terrain -> LIDAR scan -> projected scan image, and the true elevation map.
+
+Everything for a batch happens in a handful of Warp launches on one device; the results are
+handed to torch with ``wp.to_torch``, sharing memory with the Warp arrays (no copies).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+import warp as wp
+
+from ..kernels import ground_truth as truth_kernels
+from ..kernels import projection as projection_kernels
+from .device import resolve_device
+from .lidar import LidarConfig, lidar_preset
+from .projection import bin_into_maps, check_map
+from .scan import trace
+from .terrain import TerrainConfig, grid_size, make_heightfields
+from .validation import check_finite, require
+
+
+@dataclass
+class DataConfig:
+    """The elevation maps and what is done to them.
+
+    ``map_size x map_size`` cells of ``map_cell`` metres centred on the sensor (the paper: 121,
+    at 0.25 m here: a 30 m square). ``noise`` is the paper's "x% noise": Gaussian noise of
+    ``noise`` times the sample's height range added to observed cells of the scan image.
+    ``augment`` applies a random flip / 90-degree rotation per sample (to points, scan and
+    target alike). ``truth_samples``^2 surface samples average into each ground-truth cell.
+    ``fill`` is the scan image's value where no point landed (the mask tells those cells).
+    """
+
+    map_size: int = 121
+    map_cell: float = 0.25
+    noise: float = 0.0
+    augment: bool = True
+    truth_samples: int = 4
+    fill: float = 0.0
+
+    def validate(self) -> None:
+        check_map(self.map_size, self.map_cell)
+        check_finite("noise", self.noise)
+        require(0.0 <= self.noise <= 1.0, "noise", self.noise, "must be in [0, 1] (a fraction of the height range)")
+        require(isinstance(self.truth_samples, int) and self.truth_samples >= 1, "truth_samples", self.truth_samples, "must be an integer >= 1")
+        check_finite("fill", self.fill)
+
+
+@dataclass
+class SimConfig:
+    """Everything ``generate_batch`` needs: the terrain, the sensor and the maps."""
+
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    lidar: LidarConfig = field(default_factory=lambda: lidar_preset("hdl32e"))
+    data: DataConfig = field(default_factory=DataConfig)
+
+    def validate(self) -> None:
+        self.terrain.validate()
+        self.lidar.validate()
+        self.data.validate()
+
+
+@dataclass
+class Batch:
+    """A batch of training pairs, torch tensors sharing memory with the Warp arrays.
+
+    - ``scan``:   ``(B, 1, S, S)`` mean height of the LIDAR points in each cell (sensor frame,
+      metres; ``fill`` where none), with image noise if configured: the network's input
+    - ``mask``:   ``(B, 1, S, S)`` 1.0 where at least one point landed
+    - ``target``: ``(B, 1, S, S)`` the true surface averaged over each cell (sensor frame)
+    - ``points``: ``(B, rays, 3)`` the scans in each sensor frame, NaN rows for no return
+    - ``scan_max``: ``(B, 1, S, S)`` highest point per cell (``fill`` where none)
+    - ``heights``: ``(B, H, W)`` the simulated terrains (world heights, terrain cell spacing)
+    - ``sensor_z``: ``(B,)`` each sensor's world height
+    """
+
+    scan: torch.Tensor
+    mask: torch.Tensor
+    target: torch.Tensor
+    points: torch.Tensor
+    scan_max: torch.Tensor
+    heights: torch.Tensor
+    sensor_z: torch.Tensor
+    warp_arrays: dict = field(default_factory=dict, repr=False)
+
+    def to(self, device) -> "Batch":
+        moved = {k: getattr(self, k).to(device) for k in ("scan", "mask", "target", "points", "scan_max", "heights", "sensor_z")}
+        return Batch(**moved)
+
+
+def as_sim_config(cfg) -> SimConfig:
+    """A validated ``SimConfig`` from None, a ``SimConfig``/``DataConfig``, or any object or
+    mapping (a Hydra run config) with ``terrain``/``lidar``/``data`` entries."""
+    from omegaconf import DictConfig, OmegaConf
+
+    if cfg is None:
+        sim = SimConfig()
+    elif isinstance(cfg, SimConfig):
+        sim = cfg
+    elif isinstance(cfg, DataConfig):
+        sim = SimConfig(data=cfg)
+    else:
+        if not isinstance(cfg, DictConfig):
+            cfg = OmegaConf.create(cfg if isinstance(cfg, dict) else OmegaConf.structured(cfg))
+        schema = OmegaConf.structured(SimConfig)
+        picked = {k: cfg[k] for k in ("terrain", "lidar", "data") if k in cfg}
+        merged = OmegaConf.merge(schema, picked)
+        sim = OmegaConf.to_object(merged)
+    sim.validate()
+    return sim
+
+
+def terrain_size(sim: SimConfig) -> int:
+    extent = sim.data.map_size * sim.data.map_cell + 2 * sim.terrain.margin
+    return grid_size(extent, sim.terrain.cell)
+
+
+def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=None) -> Batch:
+    """Generate ``batch`` training pairs on ``device`` from ``seed``.
+
+    Terrain -> LIDAR scan -> projected scan image and mask, and the ground-truth map, all in
+    Warp launches over the whole batch. Sample ``b`` depends only on ``(cfg, seed, b)``.
+    ``heights`` (optional, a Warp array ``(batch, H, W)``) replaces the generated terrains.
+    """
+    require(isinstance(batch, int) and not isinstance(batch, bool) and batch >= 1, "batch", batch, "must be an integer >= 1")
+    require(isinstance(seed, int) and not isinstance(seed, bool), "seed", seed, "must be an integer")
+    sim = as_sim_config(cfg)
+    device = resolve_device(device)
+    seed = int(seed) & 0x7FFFFFFF
+    data, terrain = sim.data, sim.terrain
+    if heights is None:
+        region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
+        heights = make_heightfields(batch, terrain_size(sim), terrain, seed, device, obstacle_region=region)
+    points, sensor_z = trace(heights, terrain.cell, sim.lidar, seed, device, augment=data.augment)
+    scan, scan_max, mask = bin_into_maps(points, data.map_size, data.map_cell, device, fill=data.fill)
+    target = wp.empty_like(scan)
+    target_min = wp.full(batch, 1.0e30, dtype=float, device=device)
+    target_max = wp.full(batch, -1.0e30, dtype=float, device=device)
+    wp.launch(
+        truth_kernels.cell_mean_heights,
+        dim=(batch, data.map_size, data.map_size),
+        inputs=[heights, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
+        outputs=[target, target_min, target_max],
+        device=device,
+    )
+    if data.noise > 0:
+        height_range = wp.empty(batch, dtype=float, device=device)
+        wp.launch(projection_kernels.height_range, dim=batch, inputs=[target_min, target_max], outputs=[height_range], device=device)
+        wp.launch(
+            projection_kernels.add_image_noise,
+            dim=(batch, data.map_size, data.map_size),
+            inputs=[seed, float(data.noise), height_range, mask],
+            outputs=[scan],
+            device=device,
+        )
+    arrays = dict(scan=scan, mask=mask, target=target, points=points, scan_max=scan_max, heights=heights, sensor_z=sensor_z)
+    tensors = {k: wp.to_torch(v) for k, v in arrays.items()}
+    tensors["points"] = tensors["points"].view(batch, -1, 3)
+    return Batch(**tensors, warp_arrays=arrays)

@@ -1,0 +1,60 @@
+"""Ground projection of point clouds into elevation maps: the Python side of ``kernels/projection.py``."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import warp as wp
+
+from ..kernels import projection as projection_kernels
+from .device import resolve_device, to_warp
+from .validation import check_finite, require
+
+
+def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str, fill: float = 0.0):
+    """``(height, top, mask)`` Warp arrays ``(batch, 1, S, S)`` from ``(batch, rays)`` vec3 points."""
+    batch = points.shape[0]
+    grid = (batch, map_size, map_size)
+    height_sum = wp.zeros(grid, dtype=float, device=device)
+    count = wp.zeros(grid, dtype=int, device=device)
+    height_max = wp.full(grid, -1.0e30, dtype=float, device=device)
+    wp.launch(projection_kernels.bin_points, dim=points.shape, inputs=[points, float(map_cell)], outputs=[height_sum, count, height_max], device=device)
+    maps = [wp.empty((batch, 1, map_size, map_size), dtype=float, device=device) for _ in range(3)]
+    wp.launch(projection_kernels.finish_maps, dim=grid, inputs=[height_sum, count, height_max, float(fill)], outputs=maps, device=device)
+    return tuple(maps)
+
+
+def check_map(map_size, map_cell) -> None:
+    require(isinstance(map_size, (int, np.integer)) and not isinstance(map_size, bool), "map_size", map_size, "must be an integer")
+    require(map_size >= 1, "map_size", map_size, "must be >= 1")
+    check_finite("map_cell", map_cell)
+    require(map_cell > 0, "map_cell", map_cell, "must be > 0")
+
+
+def project_points(points, map_size: int = 121, map_cell: float = 0.25, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bin sensor-frame points into ``(height, mask)`` elevation maps, each ``(batch, 1, S, S)``.
+
+    ``points``: ``(rays, 3)`` or ``(batch, rays, 3)``, torch or numpy. Point (x, y, z) lands in
+    cell ``(round(x / map_cell + (S-1)/2), round(y / map_cell + (S-1)/2))``; a cell's height is
+    the mean z of its points (0 where none landed) and its mask 1 where at least one did. Rows
+    with NaN/inf and points outside the map are ignored. ``device=None`` keeps a tensor's device.
+    """
+    check_map(map_size, map_cell)
+    shape = tuple(points.shape) if hasattr(points, "shape") else np.shape(points)
+    require(len(shape) in (2, 3) and shape[-1] == 3, "points", f"shape {shape}", "must be (rays, 3) or (batch, rays, 3)")
+    if len(shape) == 2:
+        points = points[None]
+        shape = (1, *shape)
+    require(shape[0] >= 1, "points", f"shape {shape}", "needs a batch of at least one scan")
+    if device is None and isinstance(points, torch.Tensor):
+        device = points.device.type if points.device.type == "cpu" else str(points.device)
+    device = resolve_device(device)
+    batch, rays = shape[0], shape[1]
+    if rays == 0:
+        zeros = torch.zeros((batch, 1, map_size, map_size), device=device.replace("cuda:0", "cuda:0"))
+        return zeros, zeros.clone()
+    if isinstance(points, torch.Tensor) and not points.is_floating_point():
+        points = points.float()
+    wp_points = to_warp(points, wp.vec3, device)
+    height, _top, mask = bin_into_maps(wp_points, int(map_size), float(map_cell), device)
+    return wp.to_torch(height), wp.to_torch(mask)

@@ -1,0 +1,108 @@
+"""LIDAR scans of heightfields: the Python side of ``kernels/raycast.py``."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import torch
+import warp as wp
+
+from ..kernels import heightfield as heightfield_kernels
+from ..kernels import raycast as raycast_kernels
+from .device import resolve_device, to_warp
+from .lidar import LidarConfig
+from .validation import check_finite, require
+
+TILE = 8  # cells per side of the max-height tiles that let rays skip empty space
+
+
+@lru_cache(maxsize=32)
+def _directions(key: tuple, device: str) -> wp.array:
+    elevations, step, start, fov = key
+    lidar = LidarConfig(elevations_deg=list(elevations), azimuth_step_deg=step, azimuth_start_deg=start, fov_deg=fov)
+    return wp.array(lidar.ray_directions(), dtype=wp.vec3, device=device)
+
+
+def ray_directions(lidar: LidarConfig, device: str) -> wp.array:
+    """The sensor's unit ray directions as a Warp array, cached per sensor pattern and device."""
+    key = (tuple(float(e) for e in lidar.elevations_deg), float(lidar.azimuth_step_deg), float(lidar.azimuth_start_deg), float(lidar.fov_deg))
+    return _directions(key, device)
+
+
+def trace(
+    heights: wp.array,
+    cell: float,
+    lidar: LidarConfig,
+    seed: int,
+    device: str,
+    augment: bool = False,
+) -> tuple[wp.array, wp.array]:
+    """Cast every ray of ``lidar`` over every heightfield in one launch.
+
+    Returns ``(points, sensor_z)``: ``(batch, rays)`` vec3 hits in each sensor frame (NaN where
+    no return) and each sensor's world height.
+    """
+    batch, H, W = heights.shape
+    directions = ray_directions(lidar, device)
+    tiles = (batch, (H - 2) // TILE + 1, (W - 2) // TILE + 1)
+    tile_max = wp.empty(tiles, dtype=float, device=device)
+    terrain_max = wp.full(batch, -1.0e30, dtype=float, device=device)
+    sensor_z = wp.empty(batch, dtype=float, device=device)
+    points = wp.empty((batch, directions.shape[0]), dtype=wp.vec3, device=device)
+    wp.launch(heightfield_kernels.tile_max_heights, dim=tiles, inputs=[heights, TILE], outputs=[tile_max, terrain_max], device=device)
+    wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
+    wp.launch(
+        raycast_kernels.cast_rays,
+        dim=points.shape,
+        inputs=[
+            heights,
+            tile_max,
+            terrain_max,
+            sensor_z,
+            TILE,
+            float(cell),
+            directions,
+            float(lidar.min_range),
+            float(lidar.max_range),
+            float(lidar.range_noise_std),
+            float(lidar.dropout),
+            int(seed),
+            int(bool(augment)),
+        ],
+        outputs=[points],
+        device=device,
+    )
+    return points, sensor_z
+
+
+def as_heightfields(heights, name: str = "heights") -> tuple[object, tuple[int, int, int]]:
+    """Check a ``(H, W)`` or ``(batch, H, W)`` heightfield and give it a batch axis."""
+    shape = tuple(heights.shape) if hasattr(heights, "shape") else np.shape(heights)
+    require(len(shape) in (2, 3), name, f"shape {shape}", "must be (H, W) or (batch, H, W)")
+    if len(shape) == 2:
+        heights = heights[None]
+        shape = (1, *shape)
+    require(shape[0] >= 1 and shape[1] >= 2 and shape[2] >= 2, name, f"shape {shape}", "needs batch >= 1 and H, W >= 2")
+    finite = torch.isfinite(heights).all().item() if isinstance(heights, torch.Tensor) else np.isfinite(np.asarray(heights)).all()
+    require(bool(finite), name, "array", "must hold only finite heights")
+    return heights, shape
+
+
+def cast_scans(heights, cell: float, lidar: LidarConfig, seed: int = 0, device=None) -> torch.Tensor:
+    """Simulated LIDAR scans of heightfields.
+
+    ``heights``: ``(batch, H, W)`` or ``(H, W)`` metres (torch tensor or numpy array), vertex
+    (i, j) at ``x = (i - (H-1)/2) * cell``, ``y = (j - (W-1)/2) * cell``. Each sensor sits
+    ``lidar.mount_height`` above the surface at the heightfield's centre.
+    Returns ``(batch, rays, 3)`` float32 points in each sensor frame, NaN rows for rays with no
+    return; ray ``ring * columns + column`` follows ``lidar.ray_directions()``.
+    """
+    check_finite("cell", cell)
+    require(cell > 0, "cell", cell, "must be > 0")
+    require(isinstance(lidar, LidarConfig), "lidar", type(lidar).__name__, "must be a LidarConfig (see lidar_preset)")
+    lidar.validate()
+    heights, _ = as_heightfields(heights)
+    device = resolve_device(device)
+    points, _ = trace(to_warp(heights, wp.float32, device), float(cell), lidar, int(seed), device)
+    return wp.to_torch(points).view(points.shape[0], points.shape[1], 3)

@@ -1,0 +1,224 @@
+"""Terrain synthesis: fBm Perlin heightfields with obstacles, batched on the device."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import torch
+import warp as wp
+
+from ..kernels import noise as noise_kernels
+from ..kernels import obstacles as obstacle_kernels
+from .device import resolve_device
+from .validation import check_finite, require
+
+
+@dataclass
+class ObstacleConfig:
+    """How many obstacles of one kind each terrain gets, and their sizes (metres).
+
+    ``width`` is the diameter of round shapes (cylinder, rock, pit) and the width of boxes and
+    ditches; ``length`` is the long side of boxes and ditches; ``height`` is the height above the
+    local ground of cylinders, boxes and rocks and the depth of pits and ditches.
+    """
+
+    count_min: int = 0
+    count_max: int = 0
+    width_min: float = 0.5
+    width_max: float = 1.5
+    length_min: float = 2.0
+    length_max: float = 6.0
+    height_min: float = 0.5
+    height_max: float = 2.0
+
+    def validate(self, name: str) -> None:
+        require(self.count_min >= 0, f"{name}.count_min", self.count_min, "must be >= 0")
+        require(self.count_max >= self.count_min, f"{name}.count_max", self.count_max, "must be >= count_min")
+        for key in ("width", "length", "height"):
+            lo, hi = getattr(self, f"{key}_min"), getattr(self, f"{key}_max")
+            check_finite(f"{name}.{key}_min", lo)
+            check_finite(f"{name}.{key}_max", hi)
+            require(lo > 0, f"{name}.{key}_min", lo, "must be > 0")
+            require(hi >= lo, f"{name}.{key}_max", hi, f"must be >= {key}_min")
+
+
+OBSTACLE_KINDS = {
+    "cylinders": obstacle_kernels.CYLINDER,
+    "boxes": obstacle_kernels.BOX,
+    "rocks": obstacle_kernels.ROCK,
+    "pits": obstacle_kernels.PIT,
+    "ditches": obstacle_kernels.DITCH,
+}
+
+
+@dataclass
+class TerrainConfig:
+    """A random terrain: fBm Perlin relief plus obstacles.
+
+    The relief is ``amplitude * fBm`` with ``octaves`` octaves whose first wavelength is
+    ``feature_size`` metres (each octave ``lacunarity`` times finer and ``persistence`` times
+    weaker); heights lie within +-``amplitude``. ``cell`` is the terrain's resolution, finer
+    than the elevation map so obstacle edges stay sharp; ``margin`` is how far the terrain
+    extends beyond the map on each side, so shadows near the map's edge come from real terrain.
+    Obstacles are placed in the square ``+-obstacle_region`` metres around the sensor
+    (0: the map's extent), keeping ``keep_out`` metres clear around the sensor (the vehicle).
+    """
+
+    name: str = "octave5"
+    octaves: int = 5
+    persistence: float = 0.5
+    lacunarity: float = 2.0
+    feature_size: float = 16.0
+    amplitude: float = 1.5
+    cell: float = 0.125
+    margin: float = 4.0
+    obstacle_region: float = 0.0
+    keep_out: float = 2.5
+    cylinders: ObstacleConfig = field(default_factory=ObstacleConfig)
+    boxes: ObstacleConfig = field(default_factory=ObstacleConfig)
+    rocks: ObstacleConfig = field(default_factory=ObstacleConfig)
+    pits: ObstacleConfig = field(default_factory=ObstacleConfig)
+    ditches: ObstacleConfig = field(default_factory=ObstacleConfig)
+
+    def validate(self) -> None:
+        require(isinstance(self.octaves, int) and self.octaves >= 1, "octaves", self.octaves, "must be an integer >= 1")
+        require(self.octaves <= 16, "octaves", self.octaves, "must be <= 16")
+        for key in ("persistence", "lacunarity", "feature_size", "amplitude", "cell", "margin", "obstacle_region", "keep_out"):
+            check_finite(key, getattr(self, key))
+        require(self.persistence > 0, "persistence", self.persistence, "must be > 0")
+        require(self.lacunarity > 0, "lacunarity", self.lacunarity, "must be > 0")
+        require(self.feature_size > 0, "feature_size", self.feature_size, "must be > 0")
+        require(self.amplitude >= 0, "amplitude", self.amplitude, "must be >= 0")
+        require(self.cell > 0, "cell", self.cell, "must be > 0")
+        require(self.margin >= 0, "margin", self.margin, "must be >= 0")
+        require(self.obstacle_region >= 0, "obstacle_region", self.obstacle_region, "must be >= 0")
+        require(self.keep_out >= 0, "keep_out", self.keep_out, "must be >= 0")
+        for name in OBSTACLE_KINDS:
+            getattr(self, name).validate(name)
+
+    def has_obstacles(self) -> bool:
+        return any(getattr(self, name).count_max > 0 for name in OBSTACLE_KINDS)
+
+
+def grid_size(extent: float, cell: float) -> int:
+    """Odd number of vertices covering ``[-extent/2, extent/2]`` at ``cell`` spacing.
+
+    Odd, so the sensor (at the centre) sits on a vertex.
+    """
+    return 2 * math.ceil(0.5 * extent / cell - 1e-6) + 1
+
+
+def _specs(cfg: TerrainConfig, device: str):
+    specs, slot_spec, slot_rank = [], [], []
+    for name, kind in OBSTACLE_KINDS.items():
+        oc: ObstacleConfig = getattr(cfg, name)
+        if oc.count_max == 0:
+            continue
+        spec = obstacle_kernels.ObstacleSpec()
+        spec.kind = kind
+        for f in fields(oc):
+            setattr(spec, f.name, getattr(oc, f.name))
+        slot_spec += [len(specs)] * oc.count_max
+        slot_rank += list(range(oc.count_max))
+        specs.append(spec)
+    return (
+        wp.array(specs, dtype=obstacle_kernels.ObstacleSpec, device=device),
+        wp.array(np.array(slot_spec, dtype=np.int32), dtype=int, device=device),
+        wp.array(np.array(slot_rank, dtype=np.int32), dtype=int, device=device),
+    )
+
+
+def per_sample(value, batch: int, device: str, name: str) -> wp.array:
+    """A per-sample float array from a scalar or a length-``batch`` sequence / tensor."""
+    if isinstance(value, torch.Tensor):
+        value = value.detach().cpu().numpy()
+    arr = np.broadcast_to(np.asarray(value, dtype=np.float32), (batch,))
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    return wp.array(np.ascontiguousarray(arr), dtype=float, device=device)
+
+
+def make_heightfields(
+    batch: int,
+    size: int,
+    cfg: TerrainConfig,
+    seed: int,
+    device: str,
+    feature_size=None,
+    amplitude=None,
+    obstacle_region: float | None = None,
+) -> wp.array:
+    """``(batch, size, size)`` Warp heightfields: fBm relief, then obstacles stamped in.
+
+    ``feature_size`` / ``amplitude`` override the config per sample (domain randomisation).
+    """
+    cell = cfg.cell
+    heights = wp.empty((batch, size, size), dtype=float, device=device)
+    fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
+    offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
+    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed], outputs=[fields_, offsets], device=device)
+    wp.launch(
+        noise_kernels.fractal_heightfield,
+        dim=(batch, size, size),
+        inputs=[
+            fields_,
+            offsets,
+            cell,
+            cfg.persistence,
+            cfg.lacunarity,
+            per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size"),
+            per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude"),
+        ],
+        outputs=[heights],
+        device=device,
+    )
+    if cfg.has_obstacles():
+        specs, slot_spec, slot_rank = _specs(cfg, device)
+        region = obstacle_region if obstacle_region is not None else cfg.obstacle_region
+        if region <= 0:
+            region = 0.5 * (size - 1) * cell
+        obstacles = wp.empty((batch, slot_spec.shape[0]), dtype=obstacle_kernels.Obstacle, device=device)
+        wp.launch(
+            obstacle_kernels.sample_obstacles,
+            dim=obstacles.shape,
+            inputs=[seed, specs, slot_spec, slot_rank, heights, cell, float(region), cfg.keep_out],
+            outputs=[obstacles],
+            device=device,
+        )
+        wp.launch(obstacle_kernels.stamp_obstacles, dim=heights.shape, inputs=[obstacles, cell], outputs=[heights], device=device)
+    return heights
+
+
+def fractal_heightfield(
+    batch: int,
+    size: int,
+    cell: float,
+    octaves: int = 5,
+    persistence: float = 0.5,
+    lacunarity: float = 2.0,
+    feature_size: float = 8.0,
+    amplitude: float = 1.0,
+    seed: int = 0,
+    device=None,
+) -> torch.Tensor:
+    """``(batch, size, size)`` float32 fBm Perlin heights in metres, one launch for the batch.
+
+    Vertex (i, j) lies at ``x = (i - (size-1)/2) * cell``, ``y = (j - (size-1)/2) * cell``.
+    ``feature_size`` is the first octave's wavelength (metres); heights lie within
+    ``+-amplitude`` metres. Sample ``b`` depends only on ``(seed, b)``, not on ``batch``.
+    """
+    require(isinstance(batch, (int, np.integer)) and batch >= 1, "batch", batch, "must be an integer >= 1")
+    require(isinstance(size, (int, np.integer)) and size >= 2, "size", size, "must be an integer >= 2")
+    cfg = TerrainConfig(
+        octaves=octaves,
+        persistence=persistence,
+        lacunarity=lacunarity,
+        feature_size=feature_size,
+        amplitude=amplitude,
+        cell=cell,
+    )
+    cfg.validate()
+    device = resolve_device(device)
+    return wp.to_torch(make_heightfields(int(batch), int(size), cfg, int(seed), device))

@@ -13,10 +13,10 @@ import warp as wp
 
 from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
-from .device import resolve_device
+from .device import resolve_device, to_warp
 from .lidar import LidarConfig, lidar_preset
 from .projection import bin_into_maps, check_map
-from .scan import trace
+from .scan import as_heightfields, trace
 from .terrain import TerrainConfig, grid_size, make_heightfields
 from .validation import check_finite, require
 
@@ -122,7 +122,8 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
 
     Terrain -> LIDAR scan -> projected scan image and mask, and the ground-truth map, all in
     Warp launches over the whole batch. Sample ``b`` depends only on ``(cfg, seed, b)``.
-    ``heights`` (optional, a Warp array ``(batch, H, W)``) replaces the generated terrains.
+    ``heights`` (optional, ``(batch, H, W)`` metres at ``cfg.terrain.cell`` spacing; Warp array,
+    tensor or numpy) replaces the generated terrains; it must cover the map.
     """
     require(isinstance(batch, int) and not isinstance(batch, bool) and batch >= 1, "batch", batch, "must be an integer >= 1")
     require(isinstance(seed, int) and not isinstance(seed, bool), "seed", seed, "must be an integer")
@@ -130,7 +131,15 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
     device = resolve_device(device)
     seed = int(seed) & 0x7FFFFFFF
     data, terrain = sim.data, sim.terrain
-    if heights is None:
+    if heights is not None:
+        heights, shape = as_heightfields(heights)
+        require(shape[0] == batch, "heights", f"shape {shape}", f"needs batch={batch} terrains")
+        reach = 0.5 * (min(shape[1], shape[2]) - 1) * terrain.cell
+        need = 0.5 * data.map_size * data.map_cell
+        require(reach >= need, "heights", f"shape {shape}", f"covers +-{reach:g} m but the map needs +-{need:g} m")
+        if not isinstance(heights, wp.array):
+            heights = to_warp(heights, wp.float32, device)
+    else:
         region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
         heights = make_heightfields(batch, terrain_size(sim), terrain, seed, device, obstacle_region=region)
     points, sensor_z = trace(heights, terrain.cell, sim.lidar, seed, device, augment=data.augment)

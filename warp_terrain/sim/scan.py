@@ -81,9 +81,11 @@ def as_heightfields(heights, name: str = "heights") -> tuple[object, tuple[int, 
     shape = tuple(heights.shape) if hasattr(heights, "shape") else np.shape(heights)
     require(len(shape) in (2, 3), name, f"shape {shape}", "must be (H, W) or (batch, H, W)")
     if len(shape) == 2:
-        heights = heights[None]
+        heights = heights.reshape((1, *shape)) if isinstance(heights, wp.array) else heights[None]
         shape = (1, *shape)
     require(shape[0] >= 1 and shape[1] >= 2 and shape[2] >= 2, name, f"shape {shape}", "needs batch >= 1 and H, W >= 2")
+    if isinstance(heights, wp.array):
+        return heights, shape
     finite = torch.isfinite(heights).all().item() if isinstance(heights, torch.Tensor) else np.isfinite(np.asarray(heights)).all()
     require(bool(finite), name, "array", "must hold only finite heights")
     return heights, shape

@@ -1,0 +1,143 @@
+"""fBm heightfields and obstacles: units, bounds, determinism, and bad input."""
+
+import numpy as np
+import pytest
+import torch
+import warp as wp
+
+import warp_terrain as wt
+from warp_terrain.sim.terrain import ObstacleConfig, TerrainConfig, grid_size, make_heightfields
+
+
+def test_shape_dtype_and_amplitude_bound():
+    h = wt.fractal_heightfield(3, 49, 0.25, octaves=5, amplitude=2.0, seed=7, device="cpu")
+    assert h.shape == (3, 49, 49) and h.dtype == torch.float32 and h.device.type == "cpu"
+    assert h.abs().max() <= 2.0
+    assert h.std() > 0.05  # not flat
+
+
+def test_feature_size_is_in_metres():
+    # the field depends on x / feature_size only: halving the cell and the wavelength together
+    # samples the same points of the same field
+    a = wt.fractal_heightfield(2, 33, 0.25, feature_size=4.0, seed=3)
+    b = wt.fractal_heightfield(2, 33, 0.5, feature_size=8.0, seed=3)
+    torch.testing.assert_close(a, b, rtol=0, atol=1e-6)
+    # and a grid twice as fine holds the coarse grid's vertices at every second index
+    fine = wt.fractal_heightfield(1, 65, 0.125, feature_size=4.0, seed=3)
+    torch.testing.assert_close(fine[:, ::2, ::2], a[:1], rtol=0, atol=1e-6)
+
+
+def test_amplitude_scales_linearly():
+    a = wt.fractal_heightfield(1, 33, 0.25, amplitude=1.0, seed=5)
+    b = wt.fractal_heightfield(1, 33, 0.25, amplitude=3.0, seed=5)
+    torch.testing.assert_close(3.0 * a, b, rtol=1e-6, atol=1e-6)
+
+
+def test_more_octaves_add_fine_detail():
+    smooth = wt.fractal_heightfield(4, 129, 0.25, octaves=1, seed=2)
+    rough = wt.fractal_heightfield(4, 129, 0.25, octaves=6, seed=2)
+
+    def roughness(h):  # mean squared discrete Laplacian: high-frequency energy
+        lap = h[:, 1:-1, 1:-1] * 4 - h[:, 2:, 1:-1] - h[:, :-2, 1:-1] - h[:, 1:-1, 2:] - h[:, 1:-1, :-2]
+        return float((lap**2).mean() / (h**2).mean())
+
+    assert roughness(rough) > 10 * roughness(smooth)
+
+
+def test_same_seed_same_terrain_different_seed_different_terrain():
+    a = wt.fractal_heightfield(2, 33, 0.25, seed=11)
+    b = wt.fractal_heightfield(2, 33, 0.25, seed=11)
+    c = wt.fractal_heightfield(2, 33, 0.25, seed=12)
+    assert torch.equal(a, b)
+    assert (a - c).abs().max() > 0.05
+    assert (a[0] - a[1]).abs().max() > 0.05  # samples of one batch differ too
+
+
+def test_sample_does_not_depend_on_batch_size():
+    a = wt.fractal_heightfield(1, 33, 0.25, seed=9)
+    b = wt.fractal_heightfield(4, 33, 0.25, seed=9)
+    assert torch.equal(a[0], b[0])
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(octaves=0), "octaves"),
+        (dict(octaves=-1), "octaves"),
+        (dict(cell=0.0), "cell"),
+        (dict(cell=-0.1), "cell"),
+        (dict(size=1), "size"),
+        (dict(batch=0), "batch"),
+        (dict(feature_size=0.0), "feature_size"),
+        (dict(amplitude=-1.0), "amplitude"),
+        (dict(amplitude=float("nan")), "amplitude"),
+        (dict(lacunarity=0.0), "lacunarity"),
+    ],
+)
+def test_bad_arguments_name_the_parameter(kwargs, name):
+    args = dict(batch=1, size=17, cell=0.25)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=name):
+        wt.fractal_heightfield(**args)
+
+
+def _flat_with(kind: str, **sizes) -> np.ndarray:
+    cfg = TerrainConfig(amplitude=0.0, octaves=1, cell=0.1, keep_out=1.0)
+    setattr(cfg, kind, ObstacleConfig(count_min=1, count_max=1, **sizes))
+    cfg.validate()
+    return make_heightfields(4, 161, cfg, seed=5, device="cpu", obstacle_region=6.0).numpy()
+
+
+def test_cylinder_is_a_flat_topped_disc_of_the_drawn_size():
+    h = _flat_with("cylinders", width_min=1.2, width_max=1.2, height_min=1.5, height_max=1.5)
+    cell = 0.1
+    for b in range(h.shape[0]):
+        top = h[b] > 0.0
+        assert np.allclose(h[b][top], 1.5)  # flat top at its height on flat ground
+        radius = np.sqrt(top.sum() * cell**2 / np.pi)
+        assert abs(radius - 0.6) < 0.06  # 1.2 m across, to a cell
+        ii, jj = np.nonzero(top)
+        centre = np.array([ii.mean(), jj.mean()]) - 80
+        assert np.linalg.norm(centre) * cell >= 1.0 + 0.6 - cell  # keep_out respected
+
+
+def test_pit_and_ditch_cut_to_their_depth():
+    for kind in ("pits", "ditches"):
+        h = _flat_with(kind, width_min=1.0, width_max=1.0, length_min=4.0, length_max=4.0, height_min=0.8, height_max=0.8)
+        for b in range(h.shape[0]):
+            cut = h[b] < 0.0
+            assert cut.sum() > 0
+            assert np.allclose(h[b][cut], -0.8)
+            area = cut.sum() * 0.01
+            expected = np.pi * 0.25 if kind == "pits" else 4.0 * 1.0
+            assert abs(area - expected) / expected < 0.15
+
+
+def test_obstacle_counts_follow_the_config():
+    cfg = TerrainConfig(amplitude=0.0, octaves=1, cell=0.1, keep_out=0.0)
+    cfg.boxes = ObstacleConfig(count_min=0, count_max=0)
+    cfg.rocks = ObstacleConfig(count_min=3, count_max=3, width_min=0.5, width_max=0.5, height_min=1.0, height_max=1.0)
+    h = make_heightfields(2, 201, cfg, seed=1, device="cpu", obstacle_region=8.0).numpy()
+    from scipy import ndimage
+
+    for b in range(2):
+        labels, n = ndimage.label(h[b] > 0)
+        assert 1 <= n <= 3  # three rocks (two may touch)
+        assert h[b].max() <= 1.0 + 1e-6
+
+
+def test_bad_obstacle_config_names_the_field():
+    cfg = TerrainConfig()
+    cfg.pits = ObstacleConfig(count_min=3, count_max=1)
+    with pytest.raises(ValueError, match="pits.count_max"):
+        cfg.validate()
+    cfg = TerrainConfig()
+    cfg.boxes = ObstacleConfig(width_min=-1.0)
+    with pytest.raises(ValueError, match="boxes.width_min"):
+        cfg.validate()
+
+
+def test_grid_size_is_odd_and_covers_the_extent():
+    for extent, cell in [(30.25, 0.125), (10.0, 0.1), (1.0, 0.3)]:
+        n = grid_size(extent, cell)
+        assert n % 2 == 1 and (n - 1) * cell >= extent - 1e-9

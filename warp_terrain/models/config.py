@@ -1,0 +1,89 @@
+"""The model's configuration: one flat dataclass, usable as a Hydra structured config.
+
+Plain types only (no enums, no nested objects), so that `conf/model/*.yaml` can override any
+field and a checkpoint can store it as a plain dict (`dataclasses.asdict`) that
+`torch.load(weights_only=True)` accepts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+
+GENERATORS = ("paper", "unet")
+NORMS = ("batch", "instance", "none")
+GAN_MODES = ("vanilla", "lsgan")
+
+
+@dataclass
+class ModelConfig:
+    """Generator, discriminator, losses and optimisers of the Pix2Pix model.
+
+    Defaults are the paper's (Table 1: lambda 100, Adam lr 2e-4 for both nets, beta1 0.5) and
+    pix2pix's (ngf = ndf = 64, 3-layer 70x70 PatchGAN, batch norm, decoder dropout 0.5).
+    """
+
+    name: str = "paper"  # generator: "paper" (Table 2's U-Net) | "unet" (pix2pix-style U-Net)
+    in_channels: int = 1  # condition channels (e.g. 2 for scan + observation mask)
+    out_channels: int = 1  # predicted channels (1: a height map in metres)
+    ngf: int = 64  # generator filters in the first layer (64 = Table 2 exactly)
+    ndf: int = 64  # discriminator filters in the first layer
+    disc_layers: int = 3  # PatchGAN stride-2 layers (3 = the 70x70 PatchGAN)
+    unet_depth: int = 7  # "unet" only: down-sampling steps (input padded to a multiple of 2**depth)
+    norm: str = "batch"  # "batch" | "instance" | "none"
+    dropout: float = 0.5  # dropout on the innermost decoder blocks, as pix2pix (0 disables)
+    gan_mode: str = "vanilla"  # "vanilla" (the paper's BCE cGAN) | "lsgan"
+    lambda_l1: float = 100.0  # weight of the L1 term in the generator loss
+    lr_g: float = 2e-4
+    lr_d: float = 2e-4
+    beta1: float = 0.5
+    beta2: float = 0.999
+
+    def validate(self) -> ModelConfig:
+        """Raise ValueError naming the first bad field; return self so calls can chain."""
+
+        def bad(field: str, why: str) -> ValueError:
+            return ValueError(f"ModelConfig.{field} = {getattr(self, field)!r}: {why}")
+
+        for field, allowed in (("name", GENERATORS), ("norm", NORMS), ("gan_mode", GAN_MODES)):
+            if getattr(self, field) not in allowed:
+                raise bad(field, f"expected one of {', '.join(allowed)}")
+        for field in ("in_channels", "out_channels", "ngf", "ndf", "disc_layers"):
+            value = getattr(self, field)
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+                raise bad(field, "expected a positive integer")
+        if isinstance(self.unet_depth, bool) or not isinstance(self.unet_depth, int) or self.unet_depth < 2:
+            raise bad("unet_depth", "expected an integer >= 2")
+        for field in ("lr_g", "lr_d"):
+            if not _is_number(getattr(self, field)) or not getattr(self, field) > 0:
+                raise bad(field, "expected a positive learning rate")
+        if not _is_number(self.lambda_l1) or not self.lambda_l1 >= 0:
+            raise bad("lambda_l1", "expected a number >= 0")
+        for field in ("dropout", "beta1", "beta2"):
+            value = getattr(self, field)
+            if not _is_number(value) or not 0.0 <= value < 1.0:
+                raise bad(field, "expected a number in [0, 1)")
+        return self
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def coerce(cls, cfg: ModelConfig | Mapping) -> ModelConfig:
+        """Accept a ModelConfig, a plain dict or a Hydra DictConfig (any Mapping).
+
+        Unknown keys are an error (a typo in an override should not pass silently).
+        """
+        if isinstance(cfg, cls):
+            return cfg
+        if not isinstance(cfg, Mapping):
+            raise TypeError(f"expected ModelConfig or a mapping, got {type(cfg).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(str(k) for k in cfg.keys() if k not in known)
+        if unknown:
+            raise ValueError(f"ModelConfig: unknown field(s) {', '.join(unknown)}")
+        return cls(**{k: cfg[k] for k in cfg.keys()})
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value == value

@@ -1,0 +1,236 @@
+"""The Pix2Pix model: a generator, a PatchGAN, their losses and optimisers, one training step.
+
+As in pytorch-CycleGAN-and-pix2pix, the model states its nets (`model_names`), losses
+(`loss_names`) and visuals (`visual_names`), and the training loop stays generic:
+
+    model = build_model(cfg).to(device)
+    for condition, target in batches:
+        model.set_input(condition, target)
+        losses = model.optimize_parameters()   # dict of detached 0-d tensors, no device sync
+    model.loss_values()                        # the same as python floats (syncs once)
+
+Step (pix2pix): D on (condition, prediction.detach()) as fake and (condition, target) as real,
+loss_D = (fake + real) / 2; then G with D frozen: loss_G = GAN(D(condition, prediction), real)
++ lambda_l1 * L1(prediction, target). The L1 term may be weighted per pixel (`weight` in
+`set_input`), e.g. to weight unobserved cells; without a weight it is the plain mean.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from torch import nn
+
+from .config import ModelConfig
+from .losses import GANLoss
+from .paper_unet import PaperUNet
+from .patchgan import PatchDiscriminator
+from .unet import UNet
+
+
+def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
+    """`cfg.name`: "paper" -> PaperUNet (Table 2), "unet" -> UNet (pix2pix-style)."""
+    cfg = ModelConfig.coerce(cfg).validate()
+    if cfg.name == "paper":
+        return PaperUNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.norm, cfg.dropout)
+    return UNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
+
+
+def build_discriminator(cfg: ModelConfig | Mapping) -> nn.Module:
+    cfg = ModelConfig.coerce(cfg).validate()
+    return PatchDiscriminator(cfg.in_channels, cfg.out_channels, cfg.ndf, cfg.disc_layers, cfg.norm)
+
+
+class Pix2PixModel:
+    """Conditional GAN for condition (B, in_channels, H, W) -> target (B, out_channels, H, W).
+
+    Not an nn.Module (like pix2pix's BaseModel): it owns two nets and two optimisers and
+    mirrors the nn.Module calls a loop needs: `to`, `train`, `eval`, `state_dict`,
+    `load_state_dict`. Build it on the CPU, then `.to(device)`.
+    """
+
+    model_names = ("netG", "netD")
+    loss_names = ("discriminator", "generator_gan", "l1")
+    visual_names = ("condition", "prediction", "target")
+
+    def __init__(self, cfg: ModelConfig | Mapping):
+        self.cfg = ModelConfig.coerce(cfg).validate()
+        self.device = torch.device("cpu")
+        self.netG = build_generator(self.cfg)
+        self.netD = build_discriminator(self.cfg)
+        self.criterion_gan = GANLoss(self.cfg.gan_mode)
+        betas = (self.cfg.beta1, self.cfg.beta2)
+        self.optimizer_G = torch.optim.Adam(self.netG.parameters(), lr=self.cfg.lr_g, betas=betas)
+        self.optimizer_D = torch.optim.Adam(self.netD.parameters(), lr=self.cfg.lr_d, betas=betas)
+        self.optimizers = (self.optimizer_G, self.optimizer_D)
+        self.condition: torch.Tensor | None = None
+        self.target: torch.Tensor | None = None
+        self.weight: torch.Tensor | None = None
+        self.prediction: torch.Tensor | None = None
+        self.loss_G: torch.Tensor | None = None  # total generator loss of the last step
+        self.losses: dict[str, torch.Tensor] = {}  # detached, on the model's device
+
+    # -- data ---------------------------------------------------------------------------
+    def set_input(self, condition: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> None:
+        """condition (B, in_channels, H, W), target (B, out_channels, H, W), optional weight
+        (B, 1, H, W) multiplying the per-pixel L1 term; all on the model's device already."""
+        cfg = self.cfg
+        if condition.dim() != 4 or condition.shape[1] != cfg.in_channels:
+            raise ValueError(f"condition must be (B, {cfg.in_channels}, H, W), got {tuple(condition.shape)}")
+        expected = (condition.shape[0], cfg.out_channels, *condition.shape[2:])
+        if tuple(target.shape) != expected:
+            raise ValueError(f"target must be {expected}, got {tuple(target.shape)}")
+        if weight is not None and (weight.dim() != 4 or weight.shape[1] != 1 or weight.shape[2:] != target.shape[2:]):
+            raise ValueError(f"weight must be (B, 1, H, W) like the target, got {tuple(weight.shape)}")
+        self.condition, self.target, self.weight = condition, target, weight
+
+    def forward(self) -> torch.Tensor:
+        self.prediction = self.netG(self.condition)
+        return self.prediction
+
+    # -- losses -------------------------------------------------------------------------
+    @staticmethod
+    def l1_loss(
+        prediction: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """mean(weight * |prediction - target|); weight None -> the plain mean absolute error."""
+        error = (prediction - target).abs()
+        if weight is not None:
+            error = error * weight
+        return error.mean()
+
+    def backward_D(self) -> torch.Tensor:
+        fake = torch.cat([self.condition, self.prediction.detach()], dim=1)
+        real = torch.cat([self.condition, self.target], dim=1)
+        loss_fake = self.criterion_gan(self.netD(fake), False)
+        loss_real = self.criterion_gan(self.netD(real), True)
+        loss_D = 0.5 * (loss_fake + loss_real)
+        loss_D.backward()
+        return loss_D
+
+    def backward_G(self) -> tuple[torch.Tensor, torch.Tensor]:
+        fake = torch.cat([self.condition, self.prediction], dim=1)
+        loss_gan = self.criterion_gan(self.netD(fake), True)
+        loss_l1 = self.l1_loss(self.prediction, self.target, self.weight)
+        self.loss_G = loss_gan + self.cfg.lambda_l1 * loss_l1
+        self.loss_G.backward()
+        return loss_gan, loss_l1
+
+    def optimize_parameters(self) -> dict[str, torch.Tensor]:
+        """One pix2pix step (D then G). Returns detached 0-d tensors (no host sync):
+        "discriminator" = loss_D, "generator_gan" = G's adversarial term, "l1" = the L1 term
+        before the lambda_l1 factor (metres for height targets). `loss_values()` -> floats."""
+        self.forward()
+        _set_requires_grad(self.netD, True)
+        self.optimizer_D.zero_grad(set_to_none=True)
+        loss_D = self.backward_D()
+        self.optimizer_D.step()
+
+        _set_requires_grad(self.netD, False)  # D is fixed while G trains
+        self.optimizer_G.zero_grad(set_to_none=True)
+        loss_gan, loss_l1 = self.backward_G()
+        self.optimizer_G.step()
+        _set_requires_grad(self.netD, True)
+
+        self.losses = {
+            "discriminator": loss_D.detach(),
+            "generator_gan": loss_gan.detach(),
+            "l1": loss_l1.detach(),
+        }
+        return dict(self.losses)
+
+    def loss_values(self) -> dict[str, float]:
+        """The last step's losses as python floats (one device sync)."""
+        if not self.losses:
+            return {}
+        values = torch.stack(list(self.losses.values())).tolist()
+        return dict(zip(self.losses.keys(), values))
+
+    # -- outputs ------------------------------------------------------------------------
+    def get_current_visuals(self) -> dict[str, torch.Tensor]:
+        """The last step's batch: condition, prediction (detached), target."""
+        prediction = None if self.prediction is None else self.prediction.detach()
+        return {"condition": self.condition, "prediction": prediction, "target": self.target}
+
+    def predict(self, condition: torch.Tensor) -> torch.Tensor:
+        """The generator in eval mode (no dropout, running batch-norm statistics), no grad.
+        The previous train/eval mode is restored afterwards."""
+        was_training = self.netG.training
+        self.netG.eval()
+        try:
+            with torch.no_grad():
+                return self.netG(condition)
+        finally:
+            self.netG.train(was_training)
+
+    # -- nn.Module-like plumbing ----------------------------------------------------------
+    def train(self, mode: bool = True) -> Pix2PixModel:
+        self.netG.train(mode)
+        self.netD.train(mode)
+        return self
+
+    def eval(self) -> Pix2PixModel:
+        return self.train(False)
+
+    @property
+    def training(self) -> bool:
+        return self.netG.training
+
+    def to(self, device: torch.device | str) -> Pix2PixModel:
+        """Move nets, loss buffers and optimiser state; later inputs must be on `device`."""
+        device = torch.device(device)
+        self.netG.to(device)
+        self.netD.to(device)
+        self.criterion_gan.to(device)
+        for optimizer in self.optimizers:
+            for state in optimizer.state.values():
+                for key, value in state.items():
+                    if isinstance(value, torch.Tensor) and key != "step":
+                        state[key] = value.to(device)
+        self.device = device
+        return self
+
+    def parameters(self):
+        yield from self.netG.parameters()
+        yield from self.netD.parameters()
+
+    def state_dict(self) -> dict:
+        """Both nets, both optimisers and the config (a plain dict): `torch.save` it and
+        `torch.load(..., weights_only=True)` reads it back."""
+        return {
+            "config": self.cfg.to_dict(),
+            "netG": self.netG.state_dict(),
+            "netD": self.netD.state_dict(),
+            "optimizer_G": self.optimizer_G.state_dict(),
+            "optimizer_D": self.optimizer_D.state_dict(),
+        }
+
+    def load_state_dict(self, state: Mapping, strict: bool = True) -> None:
+        """Load the nets and, where present, the optimisers (an inference-only checkpoint
+        may hold just "netG"). The stored config is not applied: build the model from it
+        first (`Pix2PixModel.from_state_dict`)."""
+        self.netG.load_state_dict(state["netG"], strict=strict)
+        if "netD" in state:
+            self.netD.load_state_dict(state["netD"], strict=strict)
+        if "optimizer_G" in state:
+            self.optimizer_G.load_state_dict(state["optimizer_G"])
+        if "optimizer_D" in state:
+            self.optimizer_D.load_state_dict(state["optimizer_D"])
+
+    @classmethod
+    def from_state_dict(cls, state: Mapping, device: torch.device | str = "cpu") -> Pix2PixModel:
+        """Rebuild from a checkpoint's stored config, load it, move it to `device`."""
+        model = cls(ModelConfig.coerce(state["config"]))
+        model.load_state_dict(state)
+        return model.to(device)
+
+
+def build_model(cfg: ModelConfig | Mapping) -> Pix2PixModel:
+    """The Pix2Pix model for `cfg` (a ModelConfig, dict or Hydra DictConfig), on the CPU."""
+    return Pix2PixModel(cfg)
+
+
+def _set_requires_grad(net: nn.Module, flag: bool) -> None:
+    for p in net.parameters():
+        p.requires_grad_(flag)

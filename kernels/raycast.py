@@ -174,11 +174,16 @@ def cast_rays(
     max_range: float,
     range_noise_std: float,
     dropout: float,
+    reach: float,
     seed: int,
     augment: int,
     points: wp.array2d(dtype=wp.vec3),
 ):
-    """One thread per (scan, ray): every ray of every scan in the batch in one launch."""
+    """One thread per (scan, ray): every ray of every scan in the batch in one launch.
+
+    Rays stop where they leave the square ``+-reach`` metres around the sensor (``reach <= 0``:
+    the whole heightfield), so a caller that only bins points into a map casts no further.
+    """
     b, r = wp.tid()
     H = heights.shape[1]
     W = heights.shape[2]
@@ -187,10 +192,16 @@ def cast_rays(
     v0 = 0.5 * float(W - 1)
     du = d[0] / cell
     dv = d[1] / cell
-    t_end = wp.min(
-        max_range,
-        wp.min(slab_exit(u0, du, 0.0, float(H - 1)), slab_exit(v0, dv, 0.0, float(W - 1))),
-    )
+    lo_u = 0.0
+    hi_u = float(H - 1)
+    lo_v = 0.0
+    hi_v = float(W - 1)
+    if reach > 0.0:
+        lo_u = wp.max(lo_u, u0 - reach / cell)
+        hi_u = wp.min(hi_u, u0 + reach / cell)
+        lo_v = wp.max(lo_v, v0 - reach / cell)
+        hi_v = wp.min(hi_v, v0 + reach / cell)
+    t_end = wp.min(max_range, wp.min(slab_exit(u0, du, lo_u, hi_u), slab_exit(v0, dv, lo_v, hi_v)))
     t = trace_heightfield(
         heights, tile_max, terrain_max[b], tile, b, u0, v0, sensor_z[b], du, dv, d[2], t_end, 1.0e-3 * cell
     )

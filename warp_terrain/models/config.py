@@ -43,7 +43,7 @@ class ModelConfig:
         """Raise ValueError naming the first bad field; return self so calls can chain."""
 
         def bad(field: str, why: str) -> ValueError:
-            return ValueError(f"ModelConfig.{field} = {getattr(self, field)!r}: {why}")
+            return ValueError(f"{field}={getattr(self, field)!r}: {why}")
 
         for field, allowed in (("name", GENERATORS), ("norm", NORMS), ("gan_mode", GAN_MODES)):
             if getattr(self, field) not in allowed:

@@ -31,6 +31,9 @@ class DataConfig:
     ``augment`` applies a random flip / 90-degree rotation per sample (to points, scan and
     target alike). ``truth_samples``^2 surface samples average into each ground-truth cell.
     ``fill`` is the scan image's value where no point landed (the mask tells those cells).
+    ``clip_rays`` stops every ray where it leaves the map's square: what lies beyond cannot
+    enter the images, so it is not cast (``Batch.points`` then holds the returns within the
+    map); set it false for the whole scan over the whole simulated terrain.
     """
 
     map_size: int = 121
@@ -39,6 +42,7 @@ class DataConfig:
     augment: bool = True
     truth_samples: int = 4
     fill: float = 0.0
+    clip_rays: bool = True
 
     def validate(self) -> None:
         check_map(self.map_size, self.map_cell)
@@ -142,7 +146,8 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
     else:
         region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
         heights = make_heightfields(batch, terrain_size(sim), terrain, seed, device, obstacle_region=region)
-    points, sensor_z = trace(heights, terrain.cell, sim.lidar, seed, device, augment=data.augment)
+    reach = 0.5 * data.map_size * data.map_cell + terrain.cell if data.clip_rays else 0.0
+    points, sensor_z = trace(heights, terrain.cell, sim.lidar, seed, device, augment=data.augment, reach=reach)
     scan, scan_max, mask = bin_into_maps(points, data.map_size, data.map_cell, device, fill=data.fill)
     target = wp.empty_like(scan)
     target_min = wp.full(batch, 1.0e30, dtype=float, device=device)

@@ -37,8 +37,11 @@ def trace(
     seed: int,
     device: str,
     augment: bool = False,
+    reach: float = 0.0,
 ) -> tuple[wp.array, wp.array]:
     """Cast every ray of ``lidar`` over every heightfield in one launch.
+
+    ``reach > 0`` stops rays where they leave the square ``+-reach`` m around the sensor.
 
     Returns ``(points, sensor_z)``: ``(batch, rays)`` vec3 hits in each sensor frame (NaN where
     no return) and each sensor's world height.
@@ -67,6 +70,7 @@ def trace(
             float(lidar.max_range),
             float(lidar.range_noise_std),
             float(lidar.dropout),
+            float(reach),
             int(seed),
             int(bool(augment)),
         ],

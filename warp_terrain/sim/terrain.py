@@ -73,7 +73,7 @@ class TerrainConfig:
     feature_size: float = 16.0
     amplitude: float = 1.5
     cell: float = 0.125
-    margin: float = 4.0
+    margin: float = 1.0
     obstacle_region: float = 0.0
     keep_out: float = 2.5
     cylinders: ObstacleConfig = field(default_factory=ObstacleConfig)

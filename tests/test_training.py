@@ -1,0 +1,183 @@
+"""Training: Hydra composition, the stream, the loop, TensorBoard, checkpoints and resume."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from warp_terrain.config import register_configs, to_run_config
+from warp_terrain.training import batch_seed, train, training_batches
+from warp_terrain.training.checkpoint import load_checkpoint
+from warp_terrain.training.stream import VALIDATION_SEED_BASE
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = str(ROOT / "conf")
+
+# small and quick: 41x41 maps (so the generic U-Net), a sparse sensor, narrow nets
+TINY = [
+    "model=unet",
+    "model.ngf=8",
+    "model.ndf=8",
+    "model.unet_depth=3",
+    "data.map_size=41",
+    "terrain.margin=0.5",
+    "lidar=vlp16",
+    "lidar.azimuth_step_deg=2.0",
+    "train.batch_size=2",
+    "train.val_size=4",
+    "train.log_every=1",
+    "train.workers=0",
+    "train.progress=false",
+]
+
+
+def run_config(*overrides):
+    register_configs()
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=list(overrides))
+    return to_run_config(cfg)
+
+
+def test_default_composition_is_typed_and_valid():
+    cfg = run_config()
+    assert cfg.terrain.name == "octave5" and cfg.lidar.name == "hdl32e" and cfg.model.name == "paper"
+    assert cfg.data.map_size == 121
+
+
+@pytest.mark.parametrize("name", ["paper_octave3_noise05", "paper_octave3_noise10", "paper_octave5_noise05", "paper_octave5_noise10"])
+def test_paper_experiments_reproduce_the_paper_settings(name):
+    cfg = run_config(f"experiment={name}")
+    octaves, noise = int(name[12]), int(name[-2:]) / 100
+    assert cfg.terrain.octaves == octaves and cfg.data.noise == pytest.approx(noise)
+    assert cfg.model.ngf == 64 and cfg.model.lambda_l1 == 100 and cfg.model.lr_g == cfg.model.lr_d == 2e-4
+    assert cfg.model.beta1 == 0.5 and cfg.train.batch_size == 1 and cfg.train.steps == 60_000
+
+
+@pytest.mark.parametrize("preset", ["vlp16", "hdl32e", "hdl64e", "os1-64", "os1-128"])
+def test_lidar_group_selects_the_published_presets(preset):
+    from warp_terrain import lidar_preset
+
+    assert run_config(f"lidar={preset}").lidar == lidar_preset(preset)
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("terrain.octaves=-1", "terrain.octaves"),
+        ("data.noise=2.0", "data.noise"),
+        ("train.steps=0", "train.steps"),
+        ("model.lr_g=-1", "model.lr_g"),
+        ("lidar.elevations_deg=[]", "lidar.elevations_deg"),
+        ("data.map_size=64", "data.map_size"),  # the paper net is for 121x121
+    ],
+)
+def test_bad_values_fail_naming_the_key(override, message):
+    with pytest.raises(ValueError, match=message):
+        run_config(override)
+
+
+def test_wrong_type_or_unknown_key_fails_at_composition():
+    from hydra.errors import ConfigCompositionException
+    from omegaconf.errors import ValidationError
+
+    with pytest.raises((ValidationError, ConfigCompositionException)):
+        run_config("terrain.octaves=many")
+    with pytest.raises(ConfigCompositionException):
+        run_config("terrain.octavez=3")
+
+
+def test_stream_seeds_are_reproducible_disjoint_and_ordered():
+    assert batch_seed(0, 0, 5) == batch_seed(0, 0, 5)
+    seeds = {batch_seed(0, r, s) for r in range(2) for s in range(500)}
+    assert len(seeds) == 1000 and max(seeds) < VALIDATION_SEED_BASE
+    cfg = run_config(*TINY)
+    sim = cfg.sim()
+    a = training_batches(sim, 2, seed=0, rank=0, start=3, stop=6, device="cpu", workers=0)
+    b = training_batches(sim, 2, seed=0, rank=0, start=0, stop=6, device="cpu", workers=0)
+    later = [next(b) for _ in range(6)][3:]
+    for x, y in zip(a, later):
+        assert int(x["step"]) == int(y["step"]) and torch.equal(x["scan"], y["scan"])
+    other_rank = next(training_batches(sim, 2, seed=0, rank=1, start=3, stop=4, device="cpu", workers=0))
+    assert not torch.equal(other_rank["target"], later[0]["target"])
+
+
+def test_worker_processes_give_the_same_stream_in_order():
+    cfg = run_config(*TINY)
+    sim = cfg.sim()
+    inline = list(training_batches(sim, 2, seed=1, rank=0, start=0, stop=4, device="cpu", workers=0))
+    spawned = list(training_batches(sim, 2, seed=1, rank=0, start=0, stop=4, device="cpu", workers=2, prefetch=1))
+    assert [int(x["step"]) for x in spawned] == [0, 1, 2, 3]
+    for x, y in zip(inline, spawned):
+        assert torch.equal(x["scan"], y["scan"]) and torch.equal(x["target"], y["target"])
+
+
+def _events(run_dir: Path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ea = EventAccumulator(str(run_dir / "tensorboard"), size_guidance={"scalars": 0, "images": 0})
+    ea.Reload()
+    return ea
+
+
+def test_training_logs_checkpoints_and_resumes_exactly(tmp_path):
+    # constant learning rates: a longer run would otherwise decay them on another schedule
+    steps = ["train.val_every=2", "train.image_every=2", "train.checkpoint_every=2", "train.lr_decay_from=1.0"]
+    cfg = run_config(*TINY, *steps, "train.steps=4")
+    first = train(cfg, tmp_path / "run")
+    assert Path(first["checkpoint"]).is_file() and Path(first["images"]).stat().st_size > 0
+    ea = _events(tmp_path / "run")
+    tags = ea.Tags()
+    for tag in ("loss/discriminator", "loss/generator_gan", "loss/l1", "val/rmse_unobserved", "throughput/data_wait_share", "lr/generator"):
+        assert tag in tags["scalars"], tag
+    assert [e.step for e in ea.Scalars("loss/l1")] == [1, 2, 3, 4]
+    assert tags["images"], "no image grid logged"
+    state = load_checkpoint(first["checkpoint"])  # weights_only=True inside
+    assert state["step"] == 4
+
+    # continue the same run folder to 6 steps, and compare with an uninterrupted 6-step run
+    resumed = train(run_config(*TINY, *steps, "train.steps=6", "train.resume=true"), tmp_path / "run")
+    straight = train(run_config(*TINY, *steps, "train.steps=6"), tmp_path / "straight")
+    a, b = load_checkpoint(resumed["checkpoint"]), load_checkpoint(straight["checkpoint"])
+    assert a["step"] == b["step"] == 6
+    for name, tensor in a["model"]["netG"].items():
+        torch.testing.assert_close(tensor, b["model"]["netG"][name], rtol=1e-4, atol=1e-5, msg=name)
+    assert [e.step for e in _events(tmp_path / "run").Scalars("loss/l1")][-2:] == [5, 6]
+
+
+def test_resume_from_a_missing_checkpoint_fails_clearly(tmp_path):
+    with pytest.raises(ValueError, match="no checkpoint"):
+        train(run_config(*TINY, "train.steps=2", "train.resume=true"), tmp_path / "empty")
+
+
+def _train_py(*args, cwd):
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+def test_train_py_bad_override_fails_fast_with_a_clear_message(tmp_path):
+    bad = _train_py("terrain.octaves=-1", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert bad.returncode != 0 and "terrain.octaves=-1" in bad.stderr and "Traceback" not in bad.stderr
+    nope = _train_py("model=nope", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert nope.returncode != 0 and "nope" in nope.stderr
+
+
+def test_train_py_multirun_sweep_completes(tmp_path):
+    out = _train_py(
+        "-m",
+        *TINY,
+        "train.steps=2",
+        "train.val_every=2",
+        "terrain=octave3,octave5",
+        "data.noise=0.05,0.10",
+        f"hydra.sweep.dir={tmp_path}/sweep",
+        cwd=tmp_path,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    summaries = sorted((tmp_path / "sweep").glob("*/summary.json"))
+    assert len(summaries) == 4
+    for path in summaries:
+        assert json.loads(path.read_text())["steps"] == 2

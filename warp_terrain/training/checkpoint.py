@@ -1,0 +1,93 @@
+"""Checkpoints: written atomically, read with ``torch.load(weights_only=True)``.
+
+A checkpoint is a plain dict of tensors and Python primitives: the model's nets and
+optimisers, the step, the RNG states and the best validation score so far. It is written to a
+temporary file in the same folder, flushed to disk and renamed over the old one, so a crash at
+any moment leaves either the previous checkpoint or the new one, never half of one.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+LATEST = "latest.pt"
+BEST = "best.pt"
+
+
+def atomic_save(obj, path: str | os.PathLike) -> None:
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise ValueError(f"checkpoint folder {str(path.parent)!r} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(obj, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"checkpoint {str(path)!r} does not exist")
+    try:
+        return torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as err:  # a truncated or foreign file: say which, not a pickle trace
+        raise ValueError(f"checkpoint {str(path)!r} cannot be read ({type(err).__name__}: {err})") from None
+
+
+def rng_state() -> dict:
+    np_state = np.random.get_state()
+    state = {
+        "torch": torch.get_rng_state(),
+        "numpy": [np_state[0], torch.from_numpy(np_state[1].astype(np.int64)), *np_state[2:]],
+        "python": _python_state(random.getstate()),
+    }
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: dict) -> None:
+    torch.set_rng_state(state["torch"])
+    kind, keys, *rest = state["numpy"]
+    np.random.set_state((kind, keys.numpy().astype(np.uint32), *rest))
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def _python_state(state):
+    version, internal, gauss = state
+    return [version, list(internal), gauss]
+
+
+def resolve_resume(resume: str, run_dir: Path) -> Path | None:
+    """The checkpoint to continue from: None for ``false``; the run folder's latest for ``true``;
+    else a checkpoint file or a run folder (its ``checkpoints/latest.pt``)."""
+    value = str(resume).strip()
+    if value.lower() in ("false", "no", "0", "none", ""):
+        return None
+    if value.lower() in ("true", "yes", "1"):
+        path = run_dir / "checkpoints" / LATEST
+        if not path.is_file():
+            raise ValueError(f"train.resume=true: no checkpoint at {str(path)!r} (set hydra.run.dir to the run folder to continue)")
+        return path
+    path = Path(value).expanduser()
+    if path.is_dir():
+        path = path / "checkpoints" / LATEST if (path / "checkpoints").is_dir() else path / LATEST
+    if not path.is_file():
+        raise ValueError(f"train.resume={value!r}: no checkpoint at {str(path)!r}")
+    return path

@@ -1,0 +1,190 @@
+"""The training loop: generic over any model that states its nets, losses and visuals.
+
+It pulls batches from the stream, steps the model, logs to TensorBoard, scores the fixed
+validation set, and checkpoints. It knows nothing of how pairs are made or what the nets are.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+from torch.utils.tensorboard import SummaryWriter
+from tqdm.auto import tqdm
+
+from ..evaluation.baselines import nearest_fill
+from ..evaluation.metrics import masked_rmse
+from ..models import build_model
+from ..sim.device import resolve_device
+from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, resolve_resume, rng_state, set_rng_state
+from .stream import training_batches, validation_set
+from .visuals import map_grid
+
+if TYPE_CHECKING:
+    from ..config import RunConfig
+
+
+def model_input(batch: dict[str, torch.Tensor], in_channels: int) -> torch.Tensor:
+    """The network's condition: the scan image, or the scan and its observation mask."""
+    if in_channels == 1:
+        return batch["scan"]
+    return torch.cat([batch["scan"], batch["mask"]], dim=1)
+
+
+def lr_factor(step: int, steps: int, decay_from: float) -> float:
+    """pix2pix's schedule: constant, then linear to zero over the last ``1 - decay_from`` of the run."""
+    start = decay_from * steps
+    if decay_from >= 1.0 or step < start:
+        return 1.0
+    return max(0.0, 1.0 - (step - start) / max(steps - start, 1.0))
+
+
+def predict_in_chunks(model, condition: torch.Tensor, chunk: int = 16) -> torch.Tensor:
+    return torch.cat([model.predict(condition[i : i + chunk]) for i in range(0, condition.shape[0], chunk)])
+
+
+def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
+    """Train ``cfg.model`` on the stream described by ``cfg``; write everything under ``run_dir``.
+
+    Returns a summary: final and best validation RMSE on unobserved cells, the nearest-neighbour
+    fill's RMSE on the same set, wall time and paths.
+    """
+    tc = cfg.train
+    run_dir = Path(run_dir)
+    ckpt_dir = run_dir / "checkpoints"
+    image_dir = run_dir / "images"
+    for d in (ckpt_dir, image_dir):
+        d.mkdir(parents=True, exist_ok=True)
+    device = resolve_device(None if tc.device == "auto" else tc.device)
+    threads = tc.threads or (max(1, (os.cpu_count() or 1) - tc.workers) if device == "cpu" else 0)
+    if threads:
+        torch.set_num_threads(threads)
+    torch.manual_seed(tc.seed)
+    np.random.seed(tc.seed)
+
+    model = build_model(cfg.model).to(device)
+    start, best = 0, math.inf
+    resume_from = resolve_resume(tc.resume, run_dir)
+    if resume_from is not None:
+        state = load_checkpoint(resume_from)
+        model.load_state_dict(state["model"])
+        start, best = int(state["step"]), float(state["best"])
+        set_rng_state(state["rng"])
+    OmegaConf.save(OmegaConf.structured(cfg), run_dir / "run_config.yaml")
+
+    sim = cfg.sim()
+    val = validation_set(sim, tc.val_size, device)
+    unobserved = val["mask"] == 0
+    nn_rmse = masked_rmse(nearest_fill(val["scan"], val["mask"]), val["target"], unobserved)
+    val_condition = model_input(val, cfg.model.in_channels)
+
+    writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None)
+    base_lrs = {id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d}
+
+    def validate(step: int) -> float:
+        prediction = predict_in_chunks(model, val_condition)
+        rmse = masked_rmse(prediction, val["target"], unobserved)
+        writer.add_scalar("val/rmse_unobserved", rmse, step)
+        writer.add_scalar("val/rmse_observed", masked_rmse(prediction, val["target"], ~unobserved), step)
+        writer.add_scalar("val/rmse_all", masked_rmse(prediction, val["target"], torch.ones_like(unobserved)), step)
+        writer.add_scalar("val/nearest_fill_rmse_unobserved", nn_rmse, step)
+        return rmse, prediction
+
+    def save(name: str, step: int) -> None:
+        atomic_save(
+            {"model": model.state_dict(), "step": step, "best": best, "rng": rng_state(), "config": OmegaConf.to_container(OmegaConf.structured(cfg))},
+            ckpt_dir / name,
+        )
+
+    batches = training_batches(sim, tc.batch_size, tc.seed, rank, start, tc.steps, device, tc.workers, tc.prefetch)
+    bar = tqdm(total=tc.steps, initial=start, disable=not tc.progress, desc="train", unit="step", dynamic_ncols=True)
+    wait = busy = 0.0
+    pairs = 0
+    t_run = time.perf_counter()
+    rmse = math.nan
+    last_prediction = None
+    model.train()
+    for step in range(start, tc.steps):
+        t0 = time.perf_counter()
+        batch = next(batches)
+        if int(batch["step"]) != step:
+            raise RuntimeError(f"stream out of order: expected step {step}, got {int(batch['step'])}")
+        t1 = time.perf_counter()
+        factor = lr_factor(step, tc.steps, tc.lr_decay_from)
+        for opt in model.optimizers:
+            for g in opt.param_groups:
+                g["lr"] = base_lrs[id(opt)] * factor
+        batch = {k: v.to(device, non_blocking=True) for k, v in batch.items() if k != "step"}
+        model.set_input(model_input(batch, cfg.model.in_channels), batch["target"])
+        model.optimize_parameters()
+        t2 = time.perf_counter()
+        wait += t1 - t0
+        busy += t2 - t0
+        pairs += tc.batch_size
+        done = step + 1
+        if done % tc.log_every == 0 or done == tc.steps:
+            losses = model.loss_values()
+            for name, value in losses.items():
+                writer.add_scalar(f"loss/{name}", value, done)
+            writer.add_scalar("lr/generator", model.optimizer_G.param_groups[0]["lr"], done)
+            writer.add_scalar("lr/discriminator", model.optimizer_D.param_groups[0]["lr"], done)
+            writer.add_scalar("throughput/pairs_per_s", pairs / max(busy, 1e-9), done)
+            writer.add_scalar("throughput/data_wait_share", wait / max(busy, 1e-9), done)
+            bar.set_postfix(D=f"{losses['discriminator']:.3f}", G=f"{losses['generator_gan']:.3f}", L1=f"{losses['l1']:.3f}", val=f"{rmse:.3f}")
+            wait = busy = 0.0
+            pairs = 0
+        if done % tc.val_every == 0 or done == tc.steps:
+            rmse, last_prediction = validate(done)
+            model.train()
+            if rmse < best:
+                best = rmse
+                save(BEST, done)
+        if done % tc.image_every == 0 or done == tc.steps:
+            if last_prediction is None:
+                last_prediction = predict_in_chunks(model, val_condition)
+                model.train()
+            grid = map_grid(val["scan"], val["mask"], last_prediction, val["target"])
+            writer.add_image("val/scan_mask_prediction_target_error", grid, done)
+        if done % tc.checkpoint_every == 0 or done == tc.steps:
+            save(LATEST, done)
+        bar.update(1)
+    bar.close()
+
+    if start >= tc.steps:  # nothing left to train: score what was loaded
+        rmse, last_prediction = validate(tc.steps)
+    image_path = image_dir / "validation.png"
+    _save_png(map_grid(val["scan"], val["mask"], last_prediction, val["target"]), image_path)
+    summary = {
+        "run_dir": str(run_dir),
+        "steps": tc.steps,
+        "val_rmse_unobserved": rmse,
+        "best_val_rmse_unobserved": best if math.isfinite(best) else rmse,
+        "nearest_fill_rmse_unobserved": nn_rmse,
+        "wall_s": time.perf_counter() - t_run,
+        "tensorboard": str(run_dir / "tensorboard"),
+        "checkpoint": str(ckpt_dir / LATEST),
+        "best_checkpoint": str(ckpt_dir / BEST),
+        "images": str(image_path),
+    }
+    hparams = {f"{section}.{k}": v for section in ("terrain", "data", "model", "train") for k, v in asdict(getattr(cfg, section)).items() if isinstance(v, (int, float, str, bool))}
+    hparams["lidar"] = cfg.lidar.name
+    writer.add_hparams(hparams, {"hparam/val_rmse_unobserved": rmse, "hparam/nearest_fill_rmse_unobserved": nn_rmse}, run_name="hparams")
+    writer.close()
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _save_png(grid: np.ndarray, path: Path) -> None:
+    import matplotlib.image as mpimg
+
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    mpimg.imsave(tmp, grid.transpose(1, 2, 0))
+    os.replace(tmp, path)

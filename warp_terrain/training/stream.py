@@ -1,0 +1,87 @@
+"""The endless stream of training pairs, generated on the fly and never stored.
+
+Batch ``step`` of rank ``rank`` is generated from ``batch_seed(seed, rank, step)``, so any batch
+can be regenerated from its coordinates: a resumed run sees exactly the batches an
+uninterrupted run would, and ranks and workers never repeat each other. Training seeds lie in
+``[0, 2**30)``, validation seeds in ``[2**30, 2**31)``: the two never meet.
+
+On the CPU a Warp launch is single-threaded and holds the interpreter, so generation runs in
+worker processes (``torch.utils.data.DataLoader`` with the ``spawn`` context; worker ``k``
+makes steps ``k, k + n, k + 2n, ...`` and the loader interleaves them back into step order).
+On CUDA generation stays in the training process, on the device, zero-copy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterator
+
+import torch
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+from ..sim.batch import SimConfig, generate_batch
+
+VALIDATION_SEED_BASE = 1 << 30
+
+
+def batch_seed(seed: int, rank: int, step: int) -> int:
+    """The generator seed of training batch ``step`` on ``rank`` (in ``[0, 2**30)``)."""
+    digest = hashlib.blake2b(f"{seed}/{rank}/{step}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "little") % VALIDATION_SEED_BASE
+
+
+def validation_seed(index: int) -> int:
+    """The generator seed of validation chunk ``index`` (never a training seed)."""
+    return VALIDATION_SEED_BASE + index
+
+
+def make_pair(sim: SimConfig, batch_size: int, seed: int, device: str) -> dict[str, torch.Tensor]:
+    b = generate_batch(batch_size, sim, seed=seed, device=device)
+    return {"scan": b.scan, "mask": b.mask, "target": b.target}
+
+
+class PairStream(IterableDataset):
+    """Batches ``start, start + 1, ...`` (until ``stop``) of one rank's stream."""
+
+    def __init__(self, sim: SimConfig, batch_size: int, seed: int, rank: int = 0, start: int = 0, stop: int | None = None, device: str = "cpu"):
+        super().__init__()
+        self.sim, self.batch_size, self.seed, self.rank = sim, batch_size, seed, rank
+        self.start, self.stop, self.device = start, stop, device
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        info = get_worker_info()
+        worker, workers = (info.id, info.num_workers) if info is not None else (0, 1)
+        step = self.start + worker
+        while self.stop is None or step < self.stop:
+            pair = make_pair(self.sim, self.batch_size, batch_seed(self.seed, self.rank, step), self.device)
+            pair["step"] = torch.tensor(step)
+            yield pair
+            step += workers
+
+
+def _init_worker(_worker_id: int) -> None:
+    torch.set_num_threads(1)
+    import warp_terrain  # noqa: F401  (quiet Warp in the worker too)
+
+
+def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, start: int, stop: int, device: str, workers: int, prefetch: int = 4):
+    """An iterator over the training batches ``start..stop-1`` (dicts of tensors with ``step``)."""
+    on_cuda = device.startswith("cuda")
+    if workers == 0 or on_cuda:
+        return iter(PairStream(sim, batch_size, seed, rank, start, stop, device))
+    loader = DataLoader(
+        PairStream(sim, batch_size, seed, rank, start, stop, "cpu"),
+        batch_size=None,
+        num_workers=workers,
+        multiprocessing_context="spawn",
+        worker_init_fn=_init_worker,
+        prefetch_factor=prefetch,
+        persistent_workers=False,
+    )
+    return iter(loader)
+
+
+def validation_set(sim: SimConfig, size: int, device: str, chunk: int = 16) -> dict[str, torch.Tensor]:
+    """The fixed validation pairs: ``size`` samples from the validation seeds."""
+    parts = [make_pair(sim, min(chunk, size - i), validation_seed(i // chunk), device) for i in range(0, size, chunk)]
+    return {k: torch.cat([p[k].clone() for p in parts]) for k in parts[0]}

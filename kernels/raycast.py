@@ -18,7 +18,6 @@ after noise, or dropped) are written as NaN.
 import warp as wp
 
 from .frames import dihedral_apply, sample_transform
-from .heightfield import cell_plane_height
 from .rng import STREAM_RAYS, stream_state
 
 NO_HIT = wp.constant(-1.0)
@@ -36,11 +35,19 @@ def slab_exit(origin: float, direction: float, lo: float, hi: float) -> float:
 
 
 @wp.func
+def plane_height(h00: float, h10: float, h01: float, h11: float, a: float, c: float, upper: bool) -> float:
+    """Height of triangle A (``upper``, a >= c) or B of a cell, extended as a plane, at (a, c)."""
+    if upper:
+        return h00 + (h10 - h00) * a + (h11 - h10) * c
+    return h00 + (h11 - h01) * a + (h01 - h00) * c
+
+
+@wp.func
 def triangle_hit(
-    heights: wp.array3d(dtype=float),
-    b: int,
-    i: int,
-    j: int,
+    h00: float,
+    h10: float,
+    h01: float,
+    h11: float,
     a0: float,
     c0: float,
     z0: float,
@@ -50,17 +57,17 @@ def triangle_hit(
     s0: float,
     s1: float,
 ) -> float:
-    """First t in [s0, s1] where the ray meets the one triangle of cell (i, j) it is over.
+    """First t in [s0, s1] where the ray meets the one triangle of the cell it is over.
 
     Over a piece of the ray that stays on one side of the cell's diagonal the surface is one
     plane, so the ray's height above it is linear in t and the crossing is exact.
     """
     tm = 0.5 * (s0 + s1)
     upper = a0 + du * tm >= c0 + dv * tm
-    f0 = z0 + dz * s0 - cell_plane_height(heights, b, i, j, a0 + du * s0, c0 + dv * s0, upper)
+    f0 = z0 + dz * s0 - plane_height(h00, h10, h01, h11, a0 + du * s0, c0 + dv * s0, upper)
     if f0 < 0.0:
         return s0
-    f1 = z0 + dz * s1 - cell_plane_height(heights, b, i, j, a0 + du * s1, c0 + dv * s1, upper)
+    f1 = z0 + dz * s1 - plane_height(h00, h10, h01, h11, a0 + du * s1, c0 + dv * s1, upper)
     if f1 < 0.0:
         return s0 + (s1 - s0) * f0 / (f0 - f1)
     return NO_HIT
@@ -68,12 +75,12 @@ def triangle_hit(
 
 @wp.func
 def cell_hit(
-    heights: wp.array3d(dtype=float),
-    b: int,
-    i: int,
-    j: int,
-    u0: float,
-    v0: float,
+    h00: float,
+    h10: float,
+    h01: float,
+    h11: float,
+    a0: float,
+    c0: float,
     z0: float,
     du: float,
     dv: float,
@@ -81,18 +88,49 @@ def cell_hit(
     s0: float,
     s1: float,
 ) -> float:
-    """First t in [s0, s1] where the ray meets cell (i, j)'s two triangles, or NO_HIT."""
-    a0 = u0 - float(i)
-    c0 = v0 - float(j)
+    """First t in [s0, s1] where the ray meets a cell's two triangles, or NO_HIT.
+
+    ``(a0, c0)`` is the ray origin relative to the cell's (i, j) corner, in cells.
+    """
     split = s1
     if du != dv:
         t_diagonal = (c0 - a0) / (du - dv)
         if t_diagonal > s0 and t_diagonal < s1:
             split = t_diagonal
-    t = triangle_hit(heights, b, i, j, a0, c0, z0, du, dv, dz, s0, split)
+    t = triangle_hit(h00, h10, h01, h11, a0, c0, z0, du, dv, dz, s0, split)
     if t == NO_HIT and split < s1:
-        t = triangle_hit(heights, b, i, j, a0, c0, z0, du, dv, dz, split, s1)
+        t = triangle_hit(h00, h10, h01, h11, a0, c0, z0, du, dv, dz, split, s1)
     return t
+
+
+@wp.func
+def next_boundary(origin: float, inv_direction: float, index: int, step: int) -> float:
+    """Ray parameter of the cell boundary the ray crosses next along one axis."""
+    if step > 0:
+        return (float(index + 1) - origin) * inv_direction
+    if step < 0:
+        return (float(index) - origin) * inv_direction
+    return FAR
+
+
+@wp.func
+def cell_index(u: float, step: int) -> int:
+    """The cell a ray moving by ``step`` along an axis is in at coordinate ``u``: on a boundary,
+    the one it is entering."""
+    i = int(wp.floor(u))
+    if step < 0 and float(i) == u:
+        i -= 1
+    return i
+
+
+@wp.func
+def forward(current: int, candidate: int, step: int) -> int:
+    """``candidate``, unless it lies behind ``current`` for a ray moving by ``step``."""
+    if step > 0:
+        return wp.max(current, candidate)
+    if step < 0:
+        return wp.min(current, candidate)
+    return current
 
 
 @wp.func
@@ -109,54 +147,83 @@ def trace_heightfield(
     dv: float,
     dz: float,
     t_end: float,
-    nudge: float,
 ) -> float:
     """Distance along the ray to the first surface of heightfield ``b`` before ``t_end``.
 
-    Grid coordinates: the ray is ``(u0 + du t, v0 + dv t, z0 + dz t)`` with t in metres.
-    ``nudge`` (a small t) picks the cell the ray is entering at a cell boundary; the
-    intersection itself is always taken from the boundary, so nothing is skipped.
+    Grid coordinates: the ray is ``(u0 + du t, v0 + dv t, z0 + dz t)`` with t in metres. The
+    walk is an incremental DDA: each step moves to the neighbouring cell whose boundary the ray
+    crosses first, and each boundary's t is computed from its integer coordinate (no drift).
+    A cell whose four corners all lie below the ray over its segment is passed without the exact
+    test; a tile the ray passes above is skipped whole, the walk resuming in the cell beyond the
+    tile boundary it leaves through. Cells are picked by the direction of travel, so a ray on a
+    boundary is in the cell it enters and never stalls.
     """
     H = heights.shape[1]
     W = heights.shape[2]
+    step_i = int(0)
+    step_j = int(0)
+    inv_du = float(0.0)
+    inv_dv = float(0.0)
+    if du > 0.0:
+        step_i = 1
+    elif du < 0.0:
+        step_i = -1
+    if dv > 0.0:
+        step_j = 1
+    elif dv < 0.0:
+        step_j = -1
+    if step_i != 0:
+        inv_du = 1.0 / du
+    if step_j != 0:
+        inv_dv = 1.0 / dv
     t = float(0.0)
+    i = cell_index(u0, step_i)
+    j = cell_index(v0, step_j)
     open_ti = int(-1)
     open_tj = int(-1)
     while t < t_end:
         z = z0 + dz * t
         if dz >= 0.0 and z > top:
             return NO_HIT
-        tn = t + nudge
-        i = int(wp.floor(u0 + du * tn))
-        j = int(wp.floor(v0 + dv * tn))
         if i < 0 or i > H - 2 or j < 0 or j > W - 2:
             return NO_HIT
         ti = i // tile
         tj = j // tile
         if ti != open_ti or tj != open_tj:
             # entering a tile: skip it whole if the ray passes above its highest vertex
-            hi_u = float(wp.min(ti * tile + tile, H - 1))
-            hi_v = float(wp.min(tj * tile + tile, W - 1))
-            t_tile = wp.min(
-                wp.min(slab_exit(u0, du, float(ti * tile), hi_u), slab_exit(v0, dv, float(tj * tile), hi_v)),
-                t_end,
-            )
-            t_tile = wp.max(t_tile, tn)
+            t_tu = next_boundary(u0, inv_du, ti * tile + wp.max(step_i, 0) * (tile - 1), step_i)
+            t_tv = next_boundary(v0, inv_dv, tj * tile + wp.max(step_j, 0) * (tile - 1), step_j)
+            t_tile = wp.min(wp.min(t_tu, t_tv), t_end)
             if wp.min(z, z0 + dz * t_tile) > tile_max[b, ti, tj]:
-                t = t_tile
+                if t_tile >= t_end:
+                    return NO_HIT
+                t = wp.max(t, t_tile)
+                # the exit axis moves into the next tile; the other follows the ray but never
+                # backwards (a ray through a tile corner must not bounce between two tiles)
+                if t_tu <= t_tv:
+                    i = ti * tile + wp.max(step_i, 0) * tile - wp.max(-step_i, 0)
+                    j = forward(j, cell_index(v0 + dv * t, step_j), step_j)
+                else:
+                    j = tj * tile + wp.max(step_j, 0) * tile - wp.max(-step_j, 0)
+                    i = forward(i, cell_index(u0 + du * t, step_i), step_i)
                 continue
             open_ti = ti
             open_tj = tj
-        t_cell = wp.min(
-            wp.min(slab_exit(u0, du, float(i), float(i + 1)), slab_exit(v0, dv, float(j), float(j + 1))),
-            t_end,
-        )
-        t_cell = wp.max(t_cell, tn)
-        hit = cell_hit(heights, b, i, j, u0, v0, z0, du, dv, dz, t, t_cell)
-        if hit != NO_HIT:
-            if hit > t_end:
-                return NO_HIT
-            return hit
+        t_u = next_boundary(u0, inv_du, i, step_i)
+        t_v = next_boundary(v0, inv_dv, j, step_j)
+        t_cell = wp.max(wp.min(wp.min(t_u, t_v), t_end), t)
+        h00 = heights[b, i, j]
+        h10 = heights[b, i + 1, j]
+        h01 = heights[b, i, j + 1]
+        h11 = heights[b, i + 1, j + 1]
+        if wp.min(z, z0 + dz * t_cell) <= wp.max(wp.max(h00, h10), wp.max(h01, h11)):
+            hit = cell_hit(h00, h10, h01, h11, u0 - float(i), v0 - float(j), z0, du, dv, dz, t, t_cell)
+            if hit != NO_HIT:
+                return hit
+        if t_u <= t_v:
+            i += step_i
+        else:
+            j += step_j
         t = t_cell
     return NO_HIT
 
@@ -202,9 +269,7 @@ def cast_rays(
         lo_v = wp.max(lo_v, v0 - reach / cell)
         hi_v = wp.min(hi_v, v0 + reach / cell)
     t_end = wp.min(max_range, wp.min(slab_exit(u0, du, lo_u, hi_u), slab_exit(v0, dv, lo_v, hi_v)))
-    t = trace_heightfield(
-        heights, tile_max, terrain_max[b], tile, b, u0, v0, sensor_z[b], du, dv, d[2], t_end, 1.0e-3 * cell
-    )
+    t = trace_heightfield(heights, tile_max, terrain_max[b], tile, b, u0, v0, sensor_z[b], du, dv, d[2], t_end)
     nan = wp.nan
     out = wp.vec3(nan, nan, nan)
     if t != NO_HIT:

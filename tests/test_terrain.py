@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 import torch
-import warp as wp
 
 import warp_terrain as wt
 from warp_terrain.sim.terrain import ObstacleConfig, TerrainConfig, grid_size, make_heightfields

@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
 
 from warp_terrain.config import register_configs, to_run_config
 from warp_terrain.training import batch_seed, train, training_batches

@@ -31,11 +31,8 @@ import torch
 import warp as wp
 
 from . import __version__
-from .kernels import ground_truth as truth_kernels
-from .kernels import projection as projection_kernels
 from .sim import SimConfig, TerrainConfig, generate_batch, lidar_preset, resolve_device
-from .sim.batch import terrain_size
-from .sim.projection import bin_into_maps
+from .sim.batch import make_maps, make_terrains, scan_terrains, terrain_size
 from .sim.scan import trace
 from .sim.terrain import make_heightfields
 
@@ -165,47 +162,21 @@ def bench_rays(device=None, quick: bool = False, repeats: int | None = None) -> 
 
 
 def _stream_stages(batch: int, sim: SimConfig, device: str, repeats: int) -> dict:
-    """Median seconds of each stage of ``generate_batch``, timed separately.
-
-    Mirrors ``generate_batch``: terrain (``make_heightfields``), ray cast (``trace``), then the
-    projection (``bin_into_maps``), the ground-truth launch and, if configured, image noise.
-    """
-    data, terrain = sim.data, sim.terrain
+    """Median seconds of each of ``generate_batch``'s stages, timed separately."""
     seed = SEED & 0x7FFFFFFF
-    region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
-    size = terrain_size(sim)
     state = {}
 
-    def make_terrain():
-        state["heights"] = make_heightfields(batch, size, terrain, seed, device, obstacle_region=region)
-
-    # as generate_batch: rays stop at the map's square unless data.clip_rays is false
-    reach = 0.5 * data.map_size * data.map_cell + terrain.cell if getattr(data, "clip_rays", False) else 0.0
+    def terrain():
+        state["heights"] = make_terrains(batch, sim, seed, device)
 
     def cast():
-        state["points"], state["sensor_z"] = trace(state["heights"], terrain.cell, sim.lidar, seed, device, augment=data.augment, reach=reach)
+        state["points"], state["sensor_z"] = scan_terrains(state["heights"], sim, seed, device)
 
-    def project_and_truth():
-        scan, _scan_max, mask = bin_into_maps(state["points"], data.map_size, data.map_cell, device, fill=data.fill)
-        target = wp.empty_like(scan)
-        target_min = wp.full(batch, 1.0e30, dtype=float, device=device)
-        target_max = wp.full(batch, -1.0e30, dtype=float, device=device)
-        wp.launch(
-            truth_kernels.cell_mean_heights,
-            dim=(batch, data.map_size, data.map_size),
-            inputs=[state["heights"], float(terrain.cell), state["sensor_z"], float(data.map_cell),
-                    int(data.truth_samples), seed, int(bool(data.augment))],
-            outputs=[target, target_min, target_max],
-            device=device,
-        )
-        if data.noise > 0:
-            height_range = wp.empty(batch, dtype=float, device=device)
-            wp.launch(projection_kernels.height_range, dim=batch, inputs=[target_min, target_max], outputs=[height_range], device=device)
-            wp.launch(projection_kernels.add_image_noise, dim=(batch, data.map_size, data.map_size),
-                      inputs=[seed, float(data.noise), height_range, mask], outputs=[scan], device=device)
+    def maps():
+        make_maps(state["heights"], state["points"], state["sensor_z"], sim, seed, device)
 
     stages = {}
-    for name, fn in (("terrain", make_terrain), ("ray_cast", cast), ("projection_truth", project_and_truth)):
+    for name, fn in (("terrain", terrain), ("ray_cast", cast), ("projection_truth", maps)):
         stages[name] = float(statistics.median(_time(fn, device, repeats)))
     return stages
 

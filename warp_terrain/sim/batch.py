@@ -121,11 +121,51 @@ def terrain_size(sim: SimConfig) -> int:
     return grid_size(extent, sim.terrain.cell)
 
 
+def make_terrains(batch: int, sim: SimConfig, seed: int, device: str) -> wp.array:
+    """Stage 1: ``(batch, H, W)`` terrains covering the map plus its margin, obstacles placed
+    within the map (or ``terrain.obstacle_region``)."""
+    data, terrain = sim.data, sim.terrain
+    region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
+    return make_heightfields(batch, terrain_size(sim), terrain, seed, device, obstacle_region=region)
+
+
+def scan_terrains(heights: wp.array, sim: SimConfig, seed: int, device: str) -> tuple[wp.array, wp.array]:
+    """Stage 2: the LIDAR scans ``(points, sensor_z)``; rays stop at the map's edge if ``clip_rays``."""
+    data = sim.data
+    reach = 0.5 * data.map_size * data.map_cell + sim.terrain.cell if data.clip_rays else 0.0
+    return trace(heights, sim.terrain.cell, sim.lidar, seed, device, augment=data.augment, reach=reach)
+
+
+def make_maps(heights: wp.array, points: wp.array, sensor_z: wp.array, sim: SimConfig, seed: int, device: str) -> dict[str, wp.array]:
+    """Stage 3: scan image, mask and max per cell from the points; the ground-truth map from the
+    terrain; image noise on observed cells if configured."""
+    data, terrain = sim.data, sim.terrain
+    batch = heights.shape[0]
+    grid = (batch, data.map_size, data.map_size)
+    scan, scan_max, mask = bin_into_maps(points, data.map_size, data.map_cell, device, fill=data.fill)
+    target = wp.empty_like(scan)
+    target_min = wp.full(batch, 1.0e30, dtype=float, device=device)
+    target_max = wp.full(batch, -1.0e30, dtype=float, device=device)
+    wp.launch(
+        truth_kernels.cell_mean_heights,
+        dim=grid,
+        inputs=[heights, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
+        outputs=[target, target_min, target_max],
+        device=device,
+    )
+    if data.noise > 0:
+        height_range = wp.empty(batch, dtype=float, device=device)
+        wp.launch(projection_kernels.height_range, dim=batch, inputs=[target_min, target_max], outputs=[height_range], device=device)
+        wp.launch(projection_kernels.add_image_noise, dim=grid, inputs=[seed, float(data.noise), height_range, mask], outputs=[scan], device=device)
+    return dict(scan=scan, mask=mask, target=target, scan_max=scan_max)
+
+
 def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=None) -> Batch:
     """Generate ``batch`` training pairs on ``device`` from ``seed``.
 
     Terrain -> LIDAR scan -> projected scan image and mask, and the ground-truth map, all in
-    Warp launches over the whole batch. Sample ``b`` depends only on ``(cfg, seed, b)``.
+    Warp launches over the whole batch (``make_terrains``, ``scan_terrains``, ``make_maps``).
+    Sample ``b`` depends only on ``(cfg, seed, b)``.
     ``heights`` (optional, ``(batch, H, W)`` metres at ``cfg.terrain.cell`` spacing; Warp array,
     tensor or numpy) replaces the generated terrains; it must cover the map.
     """
@@ -134,42 +174,19 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
     sim = as_sim_config(cfg)
     device = resolve_device(device)
     seed = int(seed) & 0x7FFFFFFF
-    data, terrain = sim.data, sim.terrain
     if heights is not None:
         heights, shape = as_heightfields(heights)
         require(shape[0] == batch, "heights", f"shape {shape}", f"needs batch={batch} terrains")
-        reach = 0.5 * (min(shape[1], shape[2]) - 1) * terrain.cell
-        need = 0.5 * data.map_size * data.map_cell
+        reach = 0.5 * (min(shape[1], shape[2]) - 1) * sim.terrain.cell
+        need = 0.5 * sim.data.map_size * sim.data.map_cell
         require(reach >= need, "heights", f"shape {shape}", f"covers +-{reach:g} m but the map needs +-{need:g} m")
         if not isinstance(heights, wp.array):
             heights = to_warp(heights, wp.float32, device)
     else:
-        region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
-        heights = make_heightfields(batch, terrain_size(sim), terrain, seed, device, obstacle_region=region)
-    reach = 0.5 * data.map_size * data.map_cell + terrain.cell if data.clip_rays else 0.0
-    points, sensor_z = trace(heights, terrain.cell, sim.lidar, seed, device, augment=data.augment, reach=reach)
-    scan, scan_max, mask = bin_into_maps(points, data.map_size, data.map_cell, device, fill=data.fill)
-    target = wp.empty_like(scan)
-    target_min = wp.full(batch, 1.0e30, dtype=float, device=device)
-    target_max = wp.full(batch, -1.0e30, dtype=float, device=device)
-    wp.launch(
-        truth_kernels.cell_mean_heights,
-        dim=(batch, data.map_size, data.map_size),
-        inputs=[heights, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
-        outputs=[target, target_min, target_max],
-        device=device,
-    )
-    if data.noise > 0:
-        height_range = wp.empty(batch, dtype=float, device=device)
-        wp.launch(projection_kernels.height_range, dim=batch, inputs=[target_min, target_max], outputs=[height_range], device=device)
-        wp.launch(
-            projection_kernels.add_image_noise,
-            dim=(batch, data.map_size, data.map_size),
-            inputs=[seed, float(data.noise), height_range, mask],
-            outputs=[scan],
-            device=device,
-        )
-    arrays = dict(scan=scan, mask=mask, target=target, points=points, scan_max=scan_max, heights=heights, sensor_z=sensor_z)
+        heights = make_terrains(batch, sim, seed, device)
+    points, sensor_z = scan_terrains(heights, sim, seed, device)
+    arrays = make_maps(heights, points, sensor_z, sim, seed, device)
+    arrays.update(points=points, heights=heights, sensor_z=sensor_z)
     tensors = {k: wp.to_torch(v) for k, v in arrays.items()}
     tensors["points"] = tensors["points"].view(batch, -1, 3)
     return Batch(**tensors, warp_arrays=arrays)

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, fields
 
 GENERATORS = ("paper", "unet")
 NORMS = ("batch", "instance", "none")
-GAN_MODES = ("vanilla", "lsgan")
+GAN_MODES = ("vanilla", "lsgan", "none")
 
 
 @dataclass
@@ -32,12 +32,14 @@ class ModelConfig:
     unet_depth: int = 7  # "unet" only: down-sampling steps (input padded to a multiple of 2**depth)
     norm: str = "batch"  # "batch" | "instance" | "none"
     dropout: float = 0.5  # dropout on the innermost decoder blocks, as pix2pix (0 disables)
-    gan_mode: str = "vanilla"  # "vanilla" (the paper's BCE cGAN) | "lsgan"
+    gan_mode: str = "vanilla"  # "vanilla" (the paper's BCE cGAN) | "lsgan" | "none" (L1 only)
     lambda_l1: float = 100.0  # weight of the L1 term in the generator loss
     lr_g: float = 2e-4
     lr_d: float = 2e-4
     beta1: float = 0.5
     beta2: float = 0.999
+    residual: bool = False  # predict a correction to a push-pull fill (needs in_channels=2)
+    unobserved_weight: float = 1.0  # L1 weight of unobserved cells relative to observed ones
 
     def validate(self) -> ModelConfig:
         """Raise ValueError naming the first bad field; return self so calls can chain."""
@@ -59,6 +61,10 @@ class ModelConfig:
                 raise bad(field, "expected a positive learning rate")
         if not _is_number(self.lambda_l1) or not self.lambda_l1 >= 0:
             raise bad("lambda_l1", "expected a number >= 0")
+        if not _is_number(self.unobserved_weight) or not self.unobserved_weight > 0:
+            raise bad("unobserved_weight", "expected a number > 0")
+        if self.residual and self.in_channels != 2:
+            raise bad("residual", "the fill needs the mask: set in_channels=2 (scan and mask)")
         for field in ("dropout", "beta1", "beta2"):
             value = getattr(self, field)
             if not _is_number(value) or not 0.0 <= value < 1.0:

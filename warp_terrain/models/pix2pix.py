@@ -23,6 +23,7 @@ import torch
 from torch import nn
 
 from .config import ModelConfig
+from .fill import FillResidualGenerator
 from .losses import GANLoss
 from .paper_unet import PaperUNet
 from .patchgan import PatchDiscriminator
@@ -33,8 +34,10 @@ def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
     """`cfg.name`: "paper" -> PaperUNet (Table 2), "unet" -> UNet (pix2pix-style)."""
     cfg = ModelConfig.coerce(cfg).validate()
     if cfg.name == "paper":
-        return PaperUNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.norm, cfg.dropout)
-    return UNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
+        net = PaperUNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.norm, cfg.dropout)
+    else:
+        net = UNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
+    return FillResidualGenerator(net) if cfg.residual else net
 
 
 def build_discriminator(cfg: ModelConfig | Mapping) -> nn.Module:
@@ -59,7 +62,8 @@ class Pix2PixModel:
         self.device = torch.device("cpu")
         self.netG = build_generator(self.cfg)
         self.netD = build_discriminator(self.cfg)
-        self.criterion_gan = GANLoss(self.cfg.gan_mode)
+        self.criterion_gan = GANLoss("vanilla" if self.cfg.gan_mode == "none" else self.cfg.gan_mode)
+        self.adversarial = self.cfg.gan_mode != "none"  # "none": L1 regression, D untouched
         betas = (self.cfg.beta1, self.cfg.beta2)
         self.optimizer_G = torch.optim.Adam(self.netG.parameters(), lr=self.cfg.lr_g, betas=betas)
         self.optimizer_D = torch.optim.Adam(self.netD.parameters(), lr=self.cfg.lr_d, betas=betas)
@@ -110,8 +114,11 @@ class Pix2PixModel:
         return loss_D
 
     def backward_G(self) -> tuple[torch.Tensor, torch.Tensor]:
-        fake = torch.cat([self.condition, self.prediction], dim=1)
-        loss_gan = self.criterion_gan(self.netD(fake), True)
+        if self.adversarial:
+            fake = torch.cat([self.condition, self.prediction], dim=1)
+            loss_gan = self.criterion_gan(self.netD(fake), True)
+        else:
+            loss_gan = torch.zeros((), device=self.prediction.device)
         loss_l1 = self.l1_loss(self.prediction, self.target, self.weight)
         self.loss_G = loss_gan + self.cfg.lambda_l1 * loss_l1
         self.loss_G.backward()
@@ -123,9 +130,12 @@ class Pix2PixModel:
         before the lambda_l1 factor (metres for height targets). `loss_values()` -> floats."""
         self.forward()
         _set_requires_grad(self.netD, True)
-        self.optimizer_D.zero_grad(set_to_none=True)
-        loss_D = self.backward_D()
-        self.optimizer_D.step()
+        if self.adversarial:
+            self.optimizer_D.zero_grad(set_to_none=True)
+            loss_D = self.backward_D()
+            self.optimizer_D.step()
+        else:
+            loss_D = torch.zeros((), device=self.prediction.device)
 
         _set_requires_grad(self.netD, False)  # D is fixed while G trains
         self.optimizer_G.zero_grad(set_to_none=True)

@@ -16,6 +16,7 @@ from ..kernels import projection as projection_kernels
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig, lidar_preset
 from .projection import bin_into_maps, check_map
+from .randomize import RandomizeConfig, randomize
 from .scan import as_heightfields, trace
 from .terrain import TerrainConfig, grid_size, make_heightfields
 from .validation import check_finite, require
@@ -43,9 +44,12 @@ class DataConfig:
     truth_samples: int = 4
     fill: float = 0.0
     clip_rays: bool = True
+    randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
 
     def validate(self) -> None:
         check_map(self.map_size, self.map_cell)
+        if self.randomize.enabled:
+            self.randomize.validate()
         check_finite("noise", self.noise)
         require(0.0 <= self.noise <= 1.0, "noise", self.noise, "must be in [0, 1] (a fraction of the height range)")
         require(isinstance(self.truth_samples, int) and self.truth_samples >= 1, "truth_samples", self.truth_samples, "must be an integer >= 1")
@@ -121,12 +125,15 @@ def terrain_size(sim: SimConfig) -> int:
     return grid_size(extent, sim.terrain.cell)
 
 
-def make_terrains(batch: int, sim: SimConfig, seed: int, device: str) -> wp.array:
+def make_terrains(batch: int, sim: SimConfig, seed: int, device: str, amplitude=None, feature_size=None) -> wp.array:
     """Stage 1: ``(batch, H, W)`` terrains covering the map plus its margin, obstacles placed
-    within the map (or ``terrain.obstacle_region``)."""
+    within the map (or ``terrain.obstacle_region``); per-sample ``amplitude``/``feature_size``
+    override the config's."""
     data, terrain = sim.data, sim.terrain
     region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
-    return make_heightfields(batch, terrain_size(sim), terrain, seed, device, obstacle_region=region)
+    return make_heightfields(
+        batch, terrain_size(sim), terrain, seed, device, feature_size=feature_size, amplitude=amplitude, obstacle_region=region
+    )
 
 
 def scan_terrains(heights: wp.array, sim: SimConfig, seed: int, device: str) -> tuple[wp.array, wp.array]:
@@ -167,13 +174,18 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
     Warp launches over the whole batch (``make_terrains``, ``scan_terrains``, ``make_maps``).
     Sample ``b`` depends only on ``(cfg, seed, b)``.
     ``heights`` (optional, ``(batch, H, W)`` metres at ``cfg.terrain.cell`` spacing; Warp array,
-    tensor or numpy) replaces the generated terrains; it must cover the map.
+    tensor or numpy) replaces the generated terrains; it must cover the map. With
+    ``data.randomize.enabled`` the sensor, terrain and obstacles are drawn per batch from ``seed``
+    (see ``sim/randomize.py``).
     """
     require(isinstance(batch, int) and not isinstance(batch, bool) and batch >= 1, "batch", batch, "must be an integer >= 1")
     require(isinstance(seed, int) and not isinstance(seed, bool), "seed", seed, "must be an integer")
     sim = as_sim_config(cfg)
     device = resolve_device(device)
     seed = int(seed) & 0x7FFFFFFF
+    amplitude = feature_size = None
+    if sim.data.randomize.enabled:
+        sim, amplitude, feature_size = randomize(sim, batch, seed)
     if heights is not None:
         heights, shape = as_heightfields(heights)
         require(shape[0] == batch, "heights", f"shape {shape}", f"needs batch={batch} terrains")
@@ -183,7 +195,7 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
         if not isinstance(heights, wp.array):
             heights = to_warp(heights, wp.float32, device)
     else:
-        heights = make_terrains(batch, sim, seed, device)
+        heights = make_terrains(batch, sim, seed, device, amplitude=amplitude, feature_size=feature_size)
     points, sensor_z = scan_terrains(heights, sim, seed, device)
     arrays = make_maps(heights, points, sensor_z, sim, seed, device)
     arrays.update(points=points, heights=heights, sensor_z=sensor_z)

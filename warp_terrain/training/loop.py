@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import masked_rmse
 from ..models import build_model
+from ..models.fill import unobserved_weight_map
 from ..sim.device import resolve_device
 from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, resolve_resume, rng_state, set_rng_state
 from .stream import training_batches, validation_set
@@ -123,7 +124,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
             for g in opt.param_groups:
                 g["lr"] = base_lrs[id(opt)] * factor
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items() if k != "step"}
-        model.set_input(model_input(batch, cfg.model.in_channels), batch["target"])
+        weight = unobserved_weight_map(batch["mask"], cfg.model.unobserved_weight) if cfg.model.unobserved_weight != 1.0 else None
+        model.set_input(model_input(batch, cfg.model.in_channels), batch["target"], weight)
         model.optimize_parameters()
         t2 = time.perf_counter()
         wait += t1 - t0

@@ -1,0 +1,89 @@
+"""Domain randomisation: each batch a different world, so a model meets no single default.
+
+Users' terrain and sensors differ from any training default. With ``data.randomize.enabled``,
+every batch draws its own sensor (any preset), mount height, range noise, octave count and
+obstacle mix, and every sample its own relief amplitude and feature size (log-uniform, from
+centimetres to metres and from a few metres to tens of metres). The draws come from the batch
+seed, so a randomised stream is as reproducible as a fixed one.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .lidar import LIDAR_PRESETS, lidar_preset
+from .terrain import OBSTACLE_KINDS, ObstacleConfig
+from .validation import check_finite, require
+
+
+@dataclass
+class RandomizeConfig:
+    """Ranges of the per-batch and per-sample draws (metres, degrees)."""
+
+    enabled: bool = False
+    amplitude_min: float = 0.05
+    amplitude_max: float = 4.0
+    feature_size_min: float = 3.0
+    feature_size_max: float = 40.0
+    octaves_min: int = 2
+    octaves_max: int = 6
+    lidars: list[str] = field(default_factory=lambda: list(LIDAR_PRESETS))
+    mount_height_min: float = 1.2
+    mount_height_max: float = 2.5
+    range_noise_max: float = 0.03
+    obstacle_probability: float = 0.4
+    azimuth_step_min_deg: float = 0.4
+
+    def validate(self) -> None:
+        for key in ("amplitude", "feature_size", "mount_height"):
+            lo, hi = getattr(self, f"{key}_min"), getattr(self, f"{key}_max")
+            check_finite(f"randomize.{key}_min", lo)
+            check_finite(f"randomize.{key}_max", hi)
+            require(lo > 0, f"randomize.{key}_min", lo, "must be > 0")
+            require(hi >= lo, f"randomize.{key}_max", hi, f"must be >= {key}_min")
+        require(1 <= self.octaves_min <= self.octaves_max <= 16, "randomize.octaves_max", self.octaves_max, "needs 1 <= octaves_min <= octaves_max <= 16")
+        require(len(self.lidars) > 0, "randomize.lidars", self.lidars, "must name at least one preset")
+        for name in self.lidars:
+            lidar_preset(name)  # raises naming an unknown preset
+        require(0.0 <= self.range_noise_max < 1.0, "randomize.range_noise_max", self.range_noise_max, "must be in [0, 1)")
+        require(0.0 <= self.obstacle_probability <= 1.0, "randomize.obstacle_probability", self.obstacle_probability, "must be in [0, 1]")
+        require(self.azimuth_step_min_deg >= 0.0, "randomize.azimuth_step_min_deg", self.azimuth_step_min_deg, "must be >= 0")
+
+
+# sizes of the obstacles a randomised batch may get, per kind (full widths / lengths / heights, m)
+OBSTACLE_RANGES = {
+    "cylinders": ObstacleConfig(count_min=1, count_max=8, width_min=0.3, width_max=2.5, height_min=0.3, height_max=3.0),
+    "boxes": ObstacleConfig(count_min=1, count_max=5, width_min=0.5, width_max=3.0, length_min=1.0, length_max=5.0, height_min=0.3, height_max=2.5),
+    "rocks": ObstacleConfig(count_min=1, count_max=8, width_min=0.4, width_max=3.0, height_min=0.2, height_max=1.5),
+    "pits": ObstacleConfig(count_min=1, count_max=5, width_min=0.6, width_max=3.0, height_min=0.3, height_max=2.0),
+    "ditches": ObstacleConfig(count_min=1, count_max=3, width_min=0.5, width_max=2.5, length_min=3.0, length_max=12.0, height_min=0.3, height_max=1.5),
+}
+
+
+def log_uniform(rng: np.random.Generator, lo: float, hi: float, size: int) -> np.ndarray:
+    return np.exp(rng.uniform(math.log(lo), math.log(hi), size)).astype(np.float32)
+
+
+def randomize(sim, batch: int, seed: int):
+    """``(sim_for_this_batch, amplitudes, feature_sizes)`` drawn from ``seed``."""
+    r: RandomizeConfig = sim.data.randomize
+    rng = np.random.default_rng([seed, 0x5EED])
+    out = copy.deepcopy(sim)
+    name = r.lidars[int(rng.integers(len(r.lidars)))]
+    lidar = lidar_preset(name)
+    lidar.mount_height = float(rng.uniform(r.mount_height_min, r.mount_height_max))
+    lidar.range_noise_std = float(rng.uniform(0.0, r.range_noise_max))
+    if r.azimuth_step_min_deg > lidar.azimuth_step_deg:
+        lidar.azimuth_step_deg = r.azimuth_step_min_deg
+    out.lidar = lidar
+    out.terrain.octaves = int(rng.integers(r.octaves_min, r.octaves_max + 1))
+    for kind in OBSTACLE_KINDS:
+        chosen = rng.uniform() < r.obstacle_probability
+        setattr(out.terrain, kind, copy.deepcopy(OBSTACLE_RANGES[kind]) if chosen else ObstacleConfig())
+    amplitudes = log_uniform(rng, r.amplitude_min, r.amplitude_max, batch)
+    feature_sizes = log_uniform(rng, r.feature_size_min, r.feature_size_max, batch)
+    return out, amplitudes, feature_sizes

@@ -28,6 +28,8 @@ def main(cfg: DictConfig) -> float:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     summary = train(run, HydraConfig.get().runtime.output_dir)
+    if "val_rmse_unobserved" not in summary:  # a non-main rank under torchrun
+        return float("nan")
     print_summary(summary)
     return summary["val_rmse_unobserved"]
 

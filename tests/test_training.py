@@ -180,3 +180,18 @@ def test_train_py_multirun_sweep_completes(tmp_path):
     assert len(summaries) == 4
     for path in summaries:
         assert json.loads(path.read_text())["steps"] == 2
+
+
+def test_torchrun_ddp_two_gloo_ranks_train_on_different_data(tmp_path):
+    run_dir = tmp_path / "ddp"
+    out = subprocess.run(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2", str(ROOT / "train.py"),
+         *TINY, "train.steps=3", "train.val_every=3", f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    main = json.loads((run_dir / "summary.json").read_text())
+    other = json.loads((run_dir / "summary_rank1.json").read_text())
+    assert main["world_size"] == 2 and main["steps"] == 3
+    assert set(main["first_batch_seeds"]).isdisjoint(other["first_batch_seeds"])  # ranks see different data
+    assert load_checkpoint(main["checkpoint"])["step"] == 3

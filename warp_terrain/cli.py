@@ -90,8 +90,272 @@ def cmd_preview(args) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------ figures
+def add_figures(sub) -> None:
+    p = sub.add_parser("figures", help="write the paper's figure kinds as PNGs",
+                       description="Write the paper's figure kinds into a folder: Fig. 1 (heightmaps for several octave "
+                                   "counts) and Fig. 3 (scan image with and without noise) from the simulator; with "
+                                   "--checkpoint also Fig. 5 (original vs reconstructed 3-D terrain), Fig. 6 (input | "
+                                   "prediction | ground truth) and Figs. 7, 8 (obstacle and negative-obstacle predictions).")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the PNGs (created if missing)")
+    p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/latest.pt or best.pt) for Figs. 5-8")
+    p.add_argument("--seed", type=int, default=0, help="sample seed (default: 0)")
+    p.add_argument("--dpi", type=int, default=80, help="resolution of the PNGs (default: 80)")
+    _add_device(p)
+    p.set_defaults(func=cmd_figures)
+
+
+def cmd_figures(args) -> int:
+    from .export.figures import write_figures
+
+    written = write_figures(args.out, checkpoint=args.checkpoint, seed=args.seed, device=args.device, dpi=args.dpi)
+    for path in written.values():
+        print(path)
+    if args.checkpoint is None:
+        print("Figs. 5-8 need a model: pass --checkpoint PATH", file=sys.stderr)
+    return 0
+
+
+# ------------------------------------------------------------------------------ export-usd
+def add_export_usd(sub) -> None:
+    p = sub.add_parser("export-usd", help="generate a sample and export it as a USD stage",
+                       description="Generate one sample of a terrain setting and write its terrain mesh (and optionally "
+                                   "its LIDAR points and a model's reconstruction with its error map) to a .usda or .usdc stage.")
+    p.add_argument("out", metavar="OUT.usda|OUT.usdc", help="the stage to write (its folder must exist)")
+    p.add_argument("--terrain", default=None, metavar="NAME",
+                   help="terrain setting (octave3, octave5, flat_cylinders, negative_obstacles) or a terrain .yaml "
+                        "(default: octave5, or the checkpoint's terrain)")
+    p.add_argument("--seed", type=int, default=0, help="sample seed (default: 0)")
+    p.add_argument("--with-points", action="store_true", help="add the LIDAR returns as UsdGeom.Points")
+    p.add_argument("--checkpoint", default=None, metavar="PATH",
+                   help="a training checkpoint: add its reconstruction and the error map (the sample uses the checkpoint's lidar and maps)")
+    p.add_argument("--png", default=None, metavar="PATH.png", help="also draw the written stage into this PNG (matplotlib 3-D)")
+    _add_device(p)
+    p.set_defaults(func=cmd_export_usd)
+
+
+def cmd_export_usd(args) -> int:
+    import copy
+
+    from .export.figures import _check_out, load_predictor, load_terrain_setting, write_usd_figure
+    from .export.usd import check_usd_path, export_usd
+    from .sim import generate_batch, resolve_device
+
+    out = check_usd_path(args.out)  # fail before any work
+    if args.png is not None:
+        _check_out(args.png)
+    device = resolve_device(args.device)
+    predictor = None
+    if args.checkpoint is not None:
+        predictor = load_predictor(args.checkpoint, device)
+        sim = copy.deepcopy(predictor.sim)
+        if args.terrain is not None:
+            sim.terrain = load_terrain_setting(args.terrain).terrain
+    else:
+        sim = load_terrain_setting(args.terrain or "octave5")
+    sim.data.augment = False  # points and maps in the terrain's orientation
+    if getattr(sim.data, "randomize", None) is not None:
+        sim.data.randomize.enabled = False
+    sim.validate()
+    batch = generate_batch(1, sim, seed=args.seed, device=device)
+    kwargs = {}
+    if predictor is not None:
+        from .training.loop import model_input
+
+        condition = model_input({"scan": batch.scan, "mask": batch.mask}, predictor.in_channels)
+        kwargs = dict(reconstruction=predictor(condition)[0, 0], target=batch.target[0, 0], reconstruction_cell=sim.data.map_cell)
+    export_usd(out, batch.heights[0], sim.terrain.cell, points=batch.points[0] if args.with_points else None,
+               sensor_z=float(batch.sensor_z[0]), **kwargs)
+    print(out)
+    if args.png is not None:
+        print(write_usd_figure(out, args.png))
+    return 0
+
+
+# ------------------------------------------------------------------------------ generate
+def add_generate(sub) -> None:
+    p = sub.add_parser("generate", help="write a fixed, seeded dataset to disk (sharded .npz + manifest.json)",
+                       description="Generate N training pairs into DIR as shard-NNNNN.npz files (scan, mask, target: float32 "
+                                   "(n, 1, S, S)) and manifest.json (config, seeds, package version, shapes, sha256 per "
+                                   "shard). Shard k = generate_batch(n_k, cfg, seed=batch_seed(SEED, 0, k)), i.e. batch k "
+                                   "of the training stream with train.seed=SEED and train.batch_size=K. Train on it with "
+                                   "train.dataset=DIR.")
+    p.add_argument("count", type=int, metavar="N", help="number of pairs")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder to write (created if missing; must be empty unless --overwrite)")
+    p.add_argument("--config", default=None, metavar="run_config.yaml",
+                   help="a run config (e.g. a run folder's run_config.yaml): its terrain, lidar and data sections")
+    p.add_argument("--terrain", default=None, metavar="NAME", help="terrain setting or terrain .yaml (default: octave5, or the config's)")
+    p.add_argument("--lidar", default=None, metavar="NAME", help="LIDAR preset (default: hdl32e, or the config's)")
+    p.add_argument("--noise", type=float, default=None, metavar="X", help="image noise as a fraction of the height range (e.g. 0.05)")
+    p.add_argument("--seed", type=int, default=0, help="dataset seed (default: 0)")
+    p.add_argument("--shard-size", type=int, default=64, metavar="K", help="pairs per shard (default: 64)")
+    p.add_argument("--with-points", action="store_true", help="also store the LIDAR points (large)")
+    p.add_argument("--overwrite", action="store_true", help="replace the dataset in a non-empty folder")
+    p.add_argument("--json", action="store_true", help="print the manifest as JSON on stdout")
+    _add_device(p)
+    p.set_defaults(func=cmd_generate)
+
+
+def _generate_config(args):
+    from .export.figures import load_terrain_setting
+    from .sim import as_sim_config, lidar_preset
+
+    if args.config is not None:
+        from omegaconf import OmegaConf
+
+        try:
+            loaded = OmegaConf.load(args.config)
+        except FileNotFoundError:
+            raise ValueError(f"config={args.config!r}: no such file") from None
+        except Exception as err:
+            raise ValueError(f"config={args.config!r}: cannot read it ({type(err).__name__})") from None
+        try:
+            sim = as_sim_config(loaded)
+        except ValueError:
+            raise
+        except Exception as err:
+            first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+            raise ValueError(f"config={args.config!r}: not a run config ({first})") from None
+        if args.terrain is not None:
+            sim.terrain = load_terrain_setting(args.terrain).terrain
+    else:
+        sim = load_terrain_setting(args.terrain or "octave5", augment=True)  # the training default's data settings
+    if args.lidar is not None:
+        sim.lidar = lidar_preset(args.lidar)
+    if args.noise is not None:
+        sim.data.noise = args.noise
+    try:
+        sim.validate()
+    except ValueError as err:
+        raise ValueError(f"data.{err}" if str(err).startswith("noise") else str(err)) from None
+    return sim
+
+
+def cmd_generate(args) -> int:
+    from .export.dataset import write_dataset
+
+    sim = _generate_config(args)
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    manifest = write_dataset(args.out, args.count, sim, seed=args.seed, shard_size=args.shard_size, overwrite=args.overwrite,
+                             with_points=args.with_points, device=args.device, progress=progress)
+    if args.json:
+        json.dump(manifest, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(f"wrote {manifest['count']} pairs in {len(manifest['shards'])} shards to {args.out}", file=sys.stderr)
+    return 0
+
+
+# ------------------------------------------------------------------------------ evaluate
+def _noise_levels(value: str) -> list[float]:
+    try:
+        levels = [float(s) for s in value.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid noise levels {value!r}: expected comma-separated numbers in [0, 1]") from None
+    if not levels or any(not 0.0 <= x <= 1.0 for x in levels):
+        raise argparse.ArgumentTypeError(f"invalid noise levels {value!r}: expected comma-separated numbers in [0, 1]")
+    return levels
+
+
+def _baseline_names(value: str) -> list[str]:
+    from .evaluation.baselines import BASELINES
+
+    if value.strip() == "none":
+        return []
+    names = [s.strip() for s in value.split(",") if s.strip()]
+    unknown = [n for n in names if n not in BASELINES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"unknown baseline {', '.join(unknown) or value!r}: choose from {','.join(BASELINES)} or none")
+    return names
+
+
+def _positive_int(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid size {value!r}: expected an integer >= 1") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"invalid size {value!r}: expected an integer >= 1")
+    return n
+
+
+def add_evaluate(sub) -> None:
+    p = sub.add_parser("evaluate", help="score classical fills (and a trained model) in metres on fixed test sets",
+                       description="Generate fixed test sets (seeds never used by training or validation) per terrain "
+                                   "setting and noise level, fill them with the classical baselines and optionally a "
+                                   "trained model, and report RMSE/MAE on unobserved, observed and in-range cells, "
+                                   "obstacle IoU, pit recall and the time per map.")
+    p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/best.pt): evaluate its model beside the baselines")
+    p.add_argument("--settings", default="octave3,octave5,flat_cylinders,negative_obstacles", metavar="NAMES",
+                   help="comma-separated terrain settings (conf/terrain) (default: octave3,octave5,flat_cylinders,negative_obstacles)")
+    p.add_argument("--noise", type=_noise_levels, default=[0.0, 0.05, 0.10], metavar="LEVELS",
+                   help="comma-separated image-noise levels, fractions of the height range (default: 0,0.05,0.1)")
+    p.add_argument("--size", type=_positive_int, default=None, metavar="N", help="samples per setting (default: 64; 4 with --quick)")
+    p.add_argument("--quick", action="store_true", help="a handful of samples per setting: a smoke test, not a measurement")
+    p.add_argument("--baselines", type=_baseline_names, default=None, metavar="NAMES",
+                   help="comma-separated subset of nearest,linear,biharmonic,telea,ns,plane, or none (default: all)")
+    p.add_argument("--lidar", default="hdl32e", metavar="NAME", help="LIDAR preset (default: hdl32e)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON on stdout (progress goes to stderr)")
+    p.add_argument("--markdown", default=None, metavar="FILE", help="also write the tables as Markdown to FILE")
+    p.add_argument("--figures", default=None, metavar="DIR", help="also write one PNG per setting into DIR (created if missing)")
+    _add_device(p)
+    p.set_defaults(func=cmd_evaluate)
+
+
+def cmd_evaluate(args) -> int:
+    import os
+    import tempfile
+    from pathlib import Path
+
+    from .evaluation.baselines import BASELINES
+    from .evaluation.evaluate import DEFAULT_SIZE, QUICK_SIZE, evaluate, format_markdown, format_table, json_ready, load_model_predictor
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    size = args.size if args.size is not None else (QUICK_SIZE if args.quick else DEFAULT_SIZE)
+    names = list(BASELINES) if args.baselines is None else args.baselines
+    predictors = {n: BASELINES[n] for n in names}
+    if args.markdown is not None and not Path(args.markdown).resolve().parent.is_dir():
+        raise ValueError(f"--markdown {args.markdown!r}: the folder does not exist")
+    model_info = None
+    if args.checkpoint is not None:
+        predictor, model_info = load_model_predictor(args.checkpoint, device=args.device)
+        predictors["model"] = predictor
+    if not predictors:
+        raise ValueError("nothing to evaluate: --baselines none needs --checkpoint")
+    results = evaluate(predictors, settings=args.settings, noise=args.noise, size=size, lidar=args.lidar,
+                       device=args.device, figures=args.figures, progress=progress)
+    if model_info is not None:
+        results["model"] = model_info
+    if args.markdown is not None:
+        out = Path(args.markdown)
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.resolve().parent)
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(format_markdown(results))
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+            os.replace(tmp, out)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        progress(f"wrote {out}")
+    if args.json:
+        json.dump(json_ready(results), sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        print(format_table(results))
+    return 0
+
+
 # ------------------------------------------------------------------------------ entry point
-SUBCOMMANDS = (add_bench, add_preview)
+SUBCOMMANDS = (add_bench, add_preview, add_figures, add_export_usd, add_generate, add_evaluate)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -23,6 +23,8 @@ Conventions shared by all fills:
   cells), so every baseline scores the same on observed cells: the scan's own error there;
 - a map with no observed cell comes back as zeros (there is nothing to fill from; zero is also
   the scan image's fill value); a fully observed map comes back as the scan;
+- every fill runs one map at a time with single-threaded BLAS, so ``ms per map`` compares
+  like with like;
 - ``linear`` needs three observed cells not on one line and ``plane`` needs three; with fewer,
   both fall back to ``nearest`` (one or two cells: the nearest observed height).
 
@@ -34,10 +36,11 @@ two defects that this module works around rather than hides:
    #25404): harmless on 0..255 images, but on heights in metres it adds up to ~1.9 m of
    speckle (measured: a constant map is "filled" with values +-1.4 m off). Navier-Stokes
    thresholds its gradient dot products at 0.01 intensity units, also tuned for 8-bit scales.
-   So each map is mapped affinely onto ``0..65535`` over its observed range, *kept in float32*
-   (no quantisation: float32 resolves 0.004 units there), inpainted, and mapped back. Telea's
-   defect then amounts to at most ~2 / 65535 of the observed height range (0.1 mm on a 4 m
-   range); the affine round trip itself costs below 1e-6 m (observed cells are restored exactly).
+   So each map is mapped affinely onto ``0..65535`` over its observed height range (or 1 m if
+   that is smaller, e.g. a flat map), *kept in float32* (no quantisation: float32 resolves
+   0.004 units there), inpainted, and mapped back. Telea's defect then amounts to at most
+   ~2 / 65535 of that range (0.1 mm on a 4 m range, 0.03 mm on a flat map); the affine round
+   trip itself costs below 1e-6 m (observed cells are restored exactly).
 2. Pixels in the image's first row and column are never inpainted (the fast-marching loop skips
    them; OpenCV issue #25389). Each map is padded with a one-cell unknown border and cropped.
 """
@@ -49,6 +52,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 from scipy import ndimage
+from threadpoolctl import threadpool_limits
 
 __all__ = [
     "BASELINES",
@@ -63,8 +67,10 @@ __all__ = [
 
 #: ``inpaintRadius`` for OpenCV's Telea and Navier-Stokes fills, in cells (OpenCV's examples use 3).
 INPAINT_RADIUS = 3
-#: The observed height range is mapped onto ``0..CV_SCALE`` (float32) before ``cv2.inpaint``.
+#: The observed height range (at least ``CV_MIN_SPAN`` metres) is mapped onto ``0..CV_SCALE``
+#: (float32) before ``cv2.inpaint``.
 CV_SCALE = 65535.0
+CV_MIN_SPAN = 1.0
 
 
 # ------------------------------------------------------------------------------ plumbing
@@ -79,7 +85,9 @@ def _per_map(fill2d: Callable[[np.ndarray, np.ndarray], np.ndarray]):
     """Lift a 2-D fill ``(z float64 (H, W), known bool (H, W)) -> (H, W)`` to a batched predictor.
 
     ``fill2d`` is only called on maps with at least one observed and one unobserved cell.
-    Observed cells of the result are reset to the scan's values.
+    Observed cells of the result are reset to the scan's values. BLAS runs single-threaded
+    inside (``threadpoolctl``): scipy's Delaunay interpolation makes one tiny LAPACK call per
+    triangle, and OpenBLAS's thread pool made that 10-100x slower on a busy 2-core machine.
     """
 
     def predictor(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -87,15 +95,16 @@ def _per_map(fill2d: Callable[[np.ndarray, np.ndarray], np.ndarray]):
         s = scan.detach().to("cpu", torch.float64).numpy()
         m = mask.detach().cpu().numpy() > 0
         out = np.zeros(s.shape, dtype=np.float32)
-        for b in range(s.shape[0]):
-            z, known = s[b, 0], m[b, 0]
-            if not known.any():
-                continue
-            if known.all():
-                out[b, 0] = z
-                continue
-            filled = np.asarray(fill2d(z, known), dtype=np.float64)
-            out[b, 0] = np.where(known, z, filled)
+        with threadpool_limits(limits=1, user_api="blas"):
+            for b in range(s.shape[0]):
+                z, known = s[b, 0], m[b, 0]
+                if not known.any():
+                    continue
+                if known.all():
+                    out[b, 0] = z
+                    continue
+                filled = np.asarray(fill2d(z, known), dtype=np.float64)
+                out[b, 0] = np.where(known, z, filled)
         return torch.from_numpy(out).to(scan.device)
 
     predictor.__name__ = fill2d.__name__.lstrip("_")
@@ -147,8 +156,8 @@ def _cv2_inpaint(z: np.ndarray, known: np.ndarray, flags: int, radius: float) ->
     import cv2
 
     lo = float(z[known].min())
-    span = float(z[known].max()) - lo
-    scale = CV_SCALE / span if span > 0 else 1.0
+    span = max(float(z[known].max()) - lo, CV_MIN_SPAN)
+    scale = CV_SCALE / span
     img = np.where(known, (z - lo) * scale, 0.0).astype(np.float32)
     holes = (~known).astype(np.uint8)
     img = np.pad(img, 1)  # one unknown cell all round: OpenCV never fills row 0 / column 0

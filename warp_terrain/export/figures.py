@@ -260,3 +260,371 @@ def write_preview(out, terrain="octave5", seed: int = 0, device=None, dpi: int =
     device = resolve_device(device)
     fig = preview_figure(samples, seed=int(seed), device=device)
     return save_figure(fig, out, dpi=int(dpi))
+
+
+# ============================================================================== the paper's figures
+# Figures 1 and 3 need only the simulator; 5-8 need a predictor: any callable
+# ``f(condition) -> (B, 1, S, S)`` on the condition tensor ``(B, in_channels, S, S)`` (the scan
+# image, or scan and observation mask for ``in_channels=2``), e.g. a trained model's ``predict``
+# (``load_predictor``). The figure code knows nothing of the training loop.
+
+FIGURE_FILES = {
+    "fig1": "fig1_octaves.png",
+    "fig3": "fig3_scan_noise.png",
+    "fig5": "fig5_reconstruction_3d.png",
+    "fig6": "fig6_input_prediction_truth.png",
+    "fig7": "fig7_obstacles.png",
+    "fig8": "fig8_negative_obstacles.png",
+}
+MODEL_FIGURES = ("fig5", "fig6", "fig7", "fig8")
+
+__all__ += [
+    "FIGURE_FILES",
+    "MODEL_FIGURES",
+    "Predictor",
+    "load_predictor",
+    "noise_figure",
+    "octaves_figure",
+    "prediction_figure",
+    "reconstruction_3d_figure",
+    "usd_figure",
+    "write_figures",
+    "write_usd_figure",
+]
+
+
+def _new_figure(figsize):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _fixed(sim: SimConfig, **data) -> SimConfig:
+    """A copy of ``sim`` without augmentation or domain randomisation (and ``data`` overrides),
+    so a figure shows the setting itself, in the terrain's orientation."""
+    import copy
+
+    sim = copy.deepcopy(sim)
+    sim.data.augment = False
+    randomize = getattr(sim.data, "randomize", None)
+    if randomize is not None:
+        randomize.enabled = False
+    for key, value in data.items():
+        setattr(sim.data, key, value)
+    sim.validate()
+    return sim
+
+
+def _norm(*arrays, pad: float = 0.5):
+    from matplotlib.colors import Normalize
+
+    lo = min(float(np.min(a)) for a in arrays)
+    hi = max(float(np.max(a)) for a in arrays)
+    if hi - lo < 1e-3:
+        lo, hi = lo - pad, hi + pad
+    return Normalize(vmin=lo, vmax=hi)
+
+
+def _check_seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed={seed!r}: must be an integer")
+    return int(seed)
+
+
+def octaves_figure(octaves=(1, 3, 5, 7), seed: int = 0, device=None, base: str = "octave5", cmap: str = "terrain"):
+    """Fig. 1: heightmaps of the same seed for several octave counts (the ``base`` setting's
+    relief, obstacles left out), on one colour scale."""
+    from ..sim import fractal_heightfield
+
+    seed = _check_seed(seed)
+    octaves = [int(o) for o in octaves]
+    if not octaves or min(octaves) < 1:
+        raise ValueError(f"octaves={octaves!r}: give one or more integers >= 1")
+    t = load_terrain_setting(base).terrain
+    size = 257
+    maps = [
+        fractal_heightfield(1, size, t.cell, octaves=o, persistence=t.persistence, lacunarity=t.lacunarity,
+                            feature_size=t.feature_size, amplitude=t.amplitude, seed=seed, device=device)[0].cpu().numpy()
+        for o in octaves
+    ]
+    norm = _norm(*maps)
+    fig = _new_figure((3.2 * len(maps) + 0.8, 3.6))
+    axes = np.atleast_1d(fig.subplots(1, len(maps)))
+    for ax, o, h in zip(axes, octaves, maps):
+        im = ax.imshow(h.T, origin="lower", extent=_grid_extent(size, t.cell), cmap=cmap, norm=norm, interpolation="nearest")
+        ax.set_title(f"octaves = {o}", fontsize=11)
+        ax.set_xlabel("x (m)", fontsize=9)
+        ax.tick_params(labelsize=8)
+    axes[0].set_ylabel("y (m)", fontsize=9)
+    fig.colorbar(im, ax=list(axes), shrink=0.85, pad=0.01).set_label("height (m)", fontsize=9)
+    fig.suptitle(f"Fig. 1: fBm Perlin heightmaps for several octave counts (seed {seed}; first wavelength "
+                 f"{t.feature_size:g} m, persistence {t.persistence:g})", fontsize=11)
+    return fig
+
+
+def noise_figure(noise=(0.0, 0.05, 0.10), seed: int = 0, device=None, terrain: str = "octave3", cmap: str = "viridis"):
+    """Fig. 3: the projected scan image of one scan without and with the paper's image noise
+    (Gaussian, ``noise`` times the sample's height range, on observed cells)."""
+    seed = _check_seed(seed)
+    noise = [float(n) for n in noise]
+    base = load_terrain_setting(terrain)
+    device = resolve_device(device)
+    images = []
+    for n in noise:
+        b = generate_batch(1, _fixed(base, noise=n), seed=seed, device=device)
+        mask = b.mask[0, 0].cpu().numpy() > 0.5
+        images.append(np.ma.masked_where(~mask, b.scan[0, 0].cpu().numpy()))
+    norm = _norm(*[i.compressed() for i in images])
+    S, mc = base.data.map_size, base.data.map_cell
+    fig = _new_figure((3.4 * len(images) + 0.8, 3.7))
+    axes = np.atleast_1d(fig.subplots(1, len(images)))
+    for ax, n, img in zip(axes, noise, images):
+        im = ax.imshow(img.T, origin="lower", extent=_grid_extent(S, mc), cmap=cmap, norm=norm, interpolation="nearest")
+        ax.set_facecolor("white")
+        ax.set_title("without noise" if n == 0 else f"{100 * n:g}% noise", fontsize=11)
+        ax.set_xlabel("x (m)", fontsize=9)
+        ax.tick_params(labelsize=8)
+    axes[0].set_ylabel("y (m)", fontsize=9)
+    fig.colorbar(im, ax=list(axes), shrink=0.85, pad=0.01).set_label("z in sensor frame (m)", fontsize=9)
+    fig.suptitle(f"Fig. 3: ground-projected LIDAR scan image ({terrain}, {base.lidar.name}, seed {seed}; blank: no return)", fontsize=11)
+    return fig
+
+
+def _predict(predictor, in_channels: int, sim: SimConfig, count: int, seed: int, device: str) -> dict:
+    """Generate ``count`` samples and run ``predictor`` on their condition; numpy maps."""
+    import torch
+
+    from ..training.loop import model_input
+
+    b = generate_batch(count, sim, seed=seed, device=device)
+    pair = {"scan": b.scan, "mask": b.mask, "target": b.target}
+    condition = model_input(pair, int(in_channels))
+    with torch.no_grad():
+        prediction = predictor(condition)
+    prediction = torch.as_tensor(prediction)
+    if tuple(prediction.shape) != tuple(b.target.shape):
+        raise ValueError(f"predictor: returned shape {tuple(prediction.shape)}, expected {tuple(b.target.shape)}")
+    return {
+        "scan": b.scan[:, 0].cpu().numpy(),
+        "mask": b.mask[:, 0].cpu().numpy() > 0.5,
+        "target": b.target[:, 0].cpu().numpy(),
+        "prediction": prediction[:, 0].detach().float().cpu().numpy(),
+    }
+
+
+def _rmse(a, b, where) -> float:
+    return float(np.sqrt(np.mean((a[where] - b[where]) ** 2))) if where.any() else float("nan")
+
+
+def reconstruction_3d_figure(predictor, in_channels: int, sim: SimConfig, seed: int = 0, device=None, cmap: str = "terrain"):
+    """Fig. 5: the original (ground-truth) and the reconstructed terrain as 3-D surfaces."""
+    seed = _check_seed(seed)
+    device = resolve_device(device)
+    sim = _fixed(sim)
+    s = _predict(predictor, in_channels, sim, 1, seed, device)
+    S, mc = sim.data.map_size, sim.data.map_cell
+    c = (np.arange(S) - 0.5 * (S - 1)) * mc
+    X, Y = np.meshgrid(c, c, indexing="ij")
+    truth, pred = s["target"][0], s["prediction"][0]
+    norm = _norm(truth, pred)
+    fig = _new_figure((11.0, 5.0))
+    for k, (title, z) in enumerate((("original terrain (ground truth)", truth), ("reconstructed terrain", pred))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        ax.plot_surface(X, Y, z, cmap=cmap, norm=norm, rcount=S, ccount=S, linewidth=0, antialiased=False)
+        pad = 0.05 * (norm.vmax - norm.vmin)
+        ax.set_zlim(norm.vmin - pad, norm.vmax + pad)
+        ax.set_title(title, fontsize=11)
+        ax.set_xlabel("x (m)", fontsize=8)
+        ax.set_ylabel("y (m)", fontsize=8)
+        ax.set_zlabel("z (m)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.view_init(elev=35, azim=-60)
+    rmse = _rmse(pred, truth, ~s["mask"][0])
+    fig.suptitle(f"Fig. 5: original and reconstructed terrain ({sim.terrain.name}, noise {100 * sim.data.noise:g}%, seed {seed}; "
+                 f"RMSE on unobserved cells {rmse:.3f} m)", fontsize=11)
+    return fig
+
+
+def prediction_figure(predictor, in_channels: int, sim: SimConfig, samples: int = 3, seed: int = 0, device=None,
+                      title: str = "Fig. 6: GAN prediction on test examples", cmap: str = "viridis"):
+    """Figs. 6-8: rows of input (scan image) | prediction | ground truth, one colour scale per row,
+    with the RMSE of the prediction on the cells the LIDAR did not see."""
+    seed = _check_seed(seed)
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples={samples!r}: must be an integer >= 1")
+    device = resolve_device(device)
+    sim = _fixed(sim)
+    s = _predict(predictor, in_channels, sim, int(samples), seed, device)
+    S, mc = sim.data.map_size, sim.data.map_cell
+    ext = _grid_extent(S, mc)
+    fig = _new_figure((11.0, 3.3 * samples + 0.6))
+    axes = np.atleast_2d(fig.subplots(samples, 3))
+    for r in range(samples):
+        mask = s["mask"][r]
+        norm = _norm(s["target"][r], s["prediction"][r])
+        scan = np.ma.masked_where(~mask, s["scan"][r])
+        panels = (("input: LIDAR scan image", scan), ("prediction", s["prediction"][r]), ("ground truth", s["target"][r]))
+        for c, (name, img) in enumerate(panels):
+            ax = axes[r, c]
+            im = ax.imshow(img.T, origin="lower", extent=ext, cmap=cmap, norm=norm, interpolation="nearest")
+            ax.set_facecolor("white")
+            if r == 0:
+                ax.set_title(name, fontsize=11)
+            ax.tick_params(labelsize=8)
+            ax.set_xlabel("x (m)", fontsize=8)
+        axes[r, 0].set_ylabel("y (m)", fontsize=8)
+        axes[r, 1].text(0.02, 0.02, f"RMSE unobserved {_rmse(s['prediction'][r], s['target'][r], ~mask):.3f} m",
+                        transform=axes[r, 1].transAxes, fontsize=8, bbox=dict(fc="white", ec="none", alpha=0.8, pad=1.5))
+        fig.colorbar(im, ax=list(axes[r]), shrink=0.9, pad=0.01).set_label("z (m)", fontsize=8)
+    fig.suptitle(f"{title} ({sim.terrain.name}, {sim.lidar.name}, noise {100 * sim.data.noise:g}%, seed {seed})", fontsize=11)
+    return fig
+
+
+class Predictor:
+    """A trained model as a figure predictor: ``predictor(condition) -> (B, 1, S, S)``, with the
+    ``in_channels`` it expects and the ``sim`` (terrain, lidar, data) it was trained on."""
+
+    def __init__(self, model, in_channels: int, sim: SimConfig, device: str):
+        self.model, self.in_channels, self.sim, self.device = model, int(in_channels), sim, device
+
+    def __call__(self, condition):
+        return self.model.predict(condition.to(self.model.device))
+
+
+def load_predictor(checkpoint, device=None) -> Predictor:
+    """The generator of a training checkpoint (``checkpoints/latest.pt`` / ``best.pt``) as a
+    :class:`Predictor`; the checkpoint's ``config`` gives the model and the data it was trained on."""
+    from ..models import Pix2PixModel
+    from ..sim import as_sim_config
+    from ..training.checkpoint import load_checkpoint
+
+    state = load_checkpoint(checkpoint)
+    if not isinstance(state, dict) or "model" not in state:
+        raise ValueError(f"checkpoint {str(checkpoint)!r}: not a training checkpoint (no 'model' entry)")
+    device = resolve_device(device)
+    try:
+        model = Pix2PixModel.from_state_dict(state["model"], device=device)
+    except (KeyError, RuntimeError, TypeError) as err:
+        raise ValueError(f"checkpoint {str(checkpoint)!r}: cannot rebuild the model ({type(err).__name__}: {err})") from None
+    model.eval()
+    config = state.get("config") or {}
+    sim = as_sim_config({k: config[k] for k in ("terrain", "lidar", "data") if k in config})
+    return Predictor(model, model.cfg.in_channels, sim, device)
+
+
+def _obstacle_sim(base: SimConfig, setting: str) -> SimConfig:
+    """``base`` (a model's lidar and maps) with the terrain setting ``setting``."""
+    import copy
+
+    sim = copy.deepcopy(base)
+    sim.terrain = load_terrain_setting(setting).terrain
+    sim.validate()
+    return sim
+
+
+def write_figures(out_dir, checkpoint=None, seed: int = 0, device=None, dpi: int = 80, predictor=None) -> dict[str, Path]:
+    """Write the paper's figure kinds as PNGs into ``out_dir`` (created if missing); returns
+    ``{"fig1": path, ...}``. Figs. 1 and 3 always; Figs. 5-8 (they need a model) with a
+    ``checkpoint`` (or a ready ``predictor``, a :class:`Predictor`). Each PNG is written atomically."""
+    seed = _check_seed(seed)
+    if isinstance(dpi, bool) or not isinstance(dpi, (int, np.integer)) or not 10 <= dpi <= 600:
+        raise ValueError(f"dpi={dpi!r}: must be an integer in [10, 600]")
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ValueError(f"out={str(out_dir)!r}: is a file, not a folder")
+    device = resolve_device(device)
+    if predictor is None and checkpoint is not None:
+        predictor = load_predictor(checkpoint, device)  # fails early on a bad checkpoint
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"out={str(out_dir)!r}: cannot create the folder ({err.strerror or err})") from None
+    figures = {
+        "fig1": lambda: octaves_figure(seed=seed, device=device),
+        "fig3": lambda: noise_figure(seed=seed, device=device),
+    }
+    if predictor is not None:
+        p, ch, sim = predictor, predictor.in_channels, predictor.sim
+        figures.update({
+            "fig5": lambda: reconstruction_3d_figure(p, ch, sim, seed=seed, device=device),
+            "fig6": lambda: prediction_figure(p, ch, sim, seed=seed, device=device),
+            "fig7": lambda: prediction_figure(p, ch, _obstacle_sim(sim, "flat_cylinders"), samples=2, seed=seed, device=device,
+                                              title="Fig. 7: obstacle prediction on a flat surface"),
+            "fig8": lambda: prediction_figure(p, ch, _obstacle_sim(sim, "negative_obstacles"), samples=2, seed=seed, device=device,
+                                              title="Fig. 8: negative obstacle prediction"),
+        })
+    written = {}
+    for key, make in figures.items():
+        written[key] = save_figure(make(), out_dir / FIGURE_FILES[key], dpi=int(dpi))
+    return written
+
+
+# ------------------------------------------------------------------------------ a USD stage, drawn
+def usd_figure(path, max_points: int = 20000, elev: float = 38.0, azim: float = -62.0):
+    """A matplotlib 3-D drawing of a stage written by ``export_usd``: every mesh's triangles as
+    they are in the file (world transforms applied, faces coloured by their ``displayColor`` and
+    shaded by their normal) and up to ``max_points`` of each point cloud (in red)."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise ValueError(f"path={str(path)!r}: cannot open the USD stage")
+    cache = UsdGeom.XformCache()
+    fig = _new_figure((9.0, 6.0))
+    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    ax.computed_zorder = False  # points drawn over the surfaces they lie on
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    light = np.array([-0.4, -0.5, 0.77])
+    light /= np.linalg.norm(light)
+    for prim in stage.Traverse():
+        world = np.array(cache.GetLocalToWorldTransform(prim), dtype=np.float64)  # row-vector convention
+        if prim.IsA(UsdGeom.Mesh):
+            mesh = UsdGeom.Mesh(prim)
+            pts = np.asarray(mesh.GetPointsAttr().Get(), dtype=np.float64)
+            pts = pts @ world[:3, :3] + world[3, :3]
+            counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
+            if not (counts == 3).all():
+                raise ValueError(f"{prim.GetPath()}: only triangle meshes are drawn")
+            tris = pts[np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)]
+            colors = mesh.GetDisplayColorPrimvar().Get()
+            rgb = np.full((len(tris), 3), 0.6) if colors is None else np.asarray(colors)[np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)].mean(axis=1)
+            n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            shade = 0.45 + 0.55 * np.clip(n @ light, 0.0, 1.0)
+            ax.add_collection3d(Poly3DCollection(tris, facecolors=np.clip(rgb * shade[:, None], 0, 1), linewidths=0, antialiased=False))
+            lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))
+        elif prim.IsA(UsdGeom.Points):
+            geom = UsdGeom.Points(prim)
+            pts = np.asarray(geom.GetPointsAttr().Get(), dtype=np.float64).reshape(-1, 3)
+            if len(pts) == 0:
+                continue
+            pts = pts @ world[:3, :3] + world[3, :3]
+            step = max(1, len(pts) // max(1, int(max_points)))
+            ax.scatter(pts[::step, 0], pts[::step, 1], pts[::step, 2], c="red", s=0.4, lw=0, depthshade=False, zorder=10)
+    if not np.isfinite(lo).all():
+        raise ValueError(f"path={str(path)!r}: the stage holds no mesh")
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    span = hi - lo
+    ax.set_box_aspect((span[0], span[1], max(span[2] * 2.0, 0.05 * max(span[0], span[1]))))  # z exaggerated 2x
+    ax.view_init(elev=elev, azim=azim)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.zaxis.set_major_locator(MaxNLocator(3))
+    ax.set_xlabel("x (m)", fontsize=8)
+    ax.set_ylabel("y (m)", fontsize=8)
+    ax.set_zlabel("z (m)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.set_title(f"{Path(path).name}: USD meshes as stored, LIDAR points in red (z exaggerated 2x)", fontsize=10)
+    return fig
+
+
+def write_usd_figure(path, out, dpi: int = 80) -> Path:
+    """Draw the stage at ``path`` (``usd_figure``) into the PNG ``out``, atomically."""
+    out = _check_out(out)
+    return save_figure(usd_figure(path), out, dpi=int(dpi))

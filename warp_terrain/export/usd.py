@@ -254,7 +254,8 @@ def _points_prim(stage, path: str, pts: np.ndarray, width: float, colors: np.nda
     prim.CreatePointsAttr(_vec3f(pts.reshape(-1, 3)))
     prim.CreateWidthsAttr(Vt.FloatArray.FromNumpy(np.full(1, width, dtype=np.float32)))
     prim.SetWidthsInterpolation(UsdGeom.Tokens.constant)
-    prim.CreateExtentAttr(UsdGeom.Points.ComputeExtent(_vec3f(pts.reshape(-1, 3)), Vt.FloatArray([width])) if len(pts) else _extent(pts))
+    half = np.float32(0.5 * width) if len(pts) else np.float32(0.0)
+    prim.CreateExtentAttr(_extent(pts.reshape(-1, 3)) if not len(pts) else _vec3f(np.stack([pts.min(axis=0) - half, pts.max(axis=0) + half])))
     prim.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex).Set(_vec3f(colors.reshape(-1, 3)))
     prim.GetPrim().SetDocumentation("LIDAR returns in the sensor frame (metres; rays without a return dropped)")
     return prim

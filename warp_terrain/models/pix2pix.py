@@ -68,6 +68,7 @@ class Pix2PixModel:
         self.optimizer_G = torch.optim.Adam(self.netG.parameters(), lr=self.cfg.lr_g, betas=betas)
         self.optimizer_D = torch.optim.Adam(self.netD.parameters(), lr=self.cfg.lr_d, betas=betas)
         self.optimizers = (self.optimizer_G, self.optimizer_D)
+        self.world = 1  # > 1 after distribute()
         self.condition: torch.Tensor | None = None
         self.target: torch.Tensor | None = None
         self.weight: torch.Tensor | None = None
@@ -133,6 +134,7 @@ class Pix2PixModel:
         if self.adversarial:
             self.optimizer_D.zero_grad(set_to_none=True)
             loss_D = self.backward_D()
+            self.average_gradients(self.netD)
             self.optimizer_D.step()
         else:
             loss_D = torch.zeros((), device=self.prediction.device)
@@ -150,6 +152,37 @@ class Pix2PixModel:
         }
         return dict(self.losses)
 
+    # -- data parallel ------------------------------------------------------------------------
+    @property
+    def generator(self) -> nn.Module:
+        """The generator itself (unwrapped from DistributedDataParallel if distributed)."""
+        return getattr(self.netG, "module", self.netG)
+
+    def distribute(self, device_ids: list[int] | None = None) -> Pix2PixModel:
+        """Train data-parallel across the default process group: G is wrapped in
+        DistributedDataParallel (its one forward per backward suits DDP); D's gradients are
+        averaged by hand after its backward, because the pix2pix D step runs D twice (fake,
+        then real) before one backward, which DDP does not allow. Both start from rank 0's
+        weights."""
+        import torch.distributed as dist
+        from torch.nn.parallel import DistributedDataParallel
+
+        self.world = dist.get_world_size()
+        for tensor in [*self.netD.parameters(), *self.netD.buffers()]:
+            dist.broadcast(tensor.data, 0)
+        self.netG = DistributedDataParallel(self.netG, device_ids=device_ids)
+        return self
+
+    def average_gradients(self, net: nn.Module) -> None:
+        if self.world == 1:
+            return
+        import torch.distributed as dist
+
+        for p in net.parameters():
+            if p.grad is not None:
+                dist.all_reduce(p.grad)
+                p.grad /= self.world
+
     def loss_values(self) -> dict[str, float]:
         """The last step's losses as python floats (one device sync)."""
         if not self.losses:
@@ -166,13 +199,14 @@ class Pix2PixModel:
     def predict(self, condition: torch.Tensor) -> torch.Tensor:
         """The generator in eval mode (no dropout, running batch-norm statistics), no grad.
         The previous train/eval mode is restored afterwards."""
-        was_training = self.netG.training
-        self.netG.eval()
+        generator = self.generator
+        was_training = generator.training
+        generator.eval()
         try:
             with torch.no_grad():
-                return self.netG(condition)
+                return generator(condition)
         finally:
-            self.netG.train(was_training)
+            generator.train(was_training)
 
     # -- nn.Module-like plumbing ----------------------------------------------------------
     def train(self, mode: bool = True) -> Pix2PixModel:
@@ -210,7 +244,7 @@ class Pix2PixModel:
         `torch.load(..., weights_only=True)` reads it back."""
         return {
             "config": self.cfg.to_dict(),
-            "netG": self.netG.state_dict(),
+            "netG": self.generator.state_dict(),
             "netD": self.netD.state_dict(),
             "optimizer_G": self.optimizer_G.state_dict(),
             "optimizer_D": self.optimizer_D.state_dict(),
@@ -220,7 +254,7 @@ class Pix2PixModel:
         """Load the nets and, where present, the optimisers (an inference-only checkpoint
         may hold just "netG"). The stored config is not applied: build the model from it
         first (`Pix2PixModel.from_state_dict`)."""
-        self.netG.load_state_dict(state["netG"], strict=strict)
+        self.generator.load_state_dict(state["netG"], strict=strict)
         if "netD" in state:
             self.netD.load_state_dict(state["netD"], strict=strict)
         if "optimizer_G" in state:

@@ -20,6 +20,8 @@ class TrainConfig:
     batches in the training process; on CUDA generation stays on the device in-process).
     ``lr_decay_from``: fraction of ``steps`` after which both learning rates decay linearly to
     zero (pix2pix's schedule; 1.0 keeps them constant, as the paper states).
+    ``dataset``: empty trains on the live stream; else a folder written by
+    ``warp-terrain generate``, cycled over (``training.stream.training_batches``).
     """
 
     steps: int = 1200
@@ -37,6 +39,7 @@ class TrainConfig:
     lr_decay_from: float = 1.0
     threads: int = 0
     progress: bool = True
+    dataset: str = ""
 
     def validate(self) -> None:
         for key in ("steps", "batch_size", "val_every", "val_size", "log_every", "image_every", "checkpoint_every", "prefetch"):
@@ -46,5 +49,6 @@ class TrainConfig:
             value = getattr(self, key)
             require(isinstance(value, int) and not isinstance(value, bool) and value >= 0, key, value, "must be an integer >= 0")
         require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "device", self.device, "must be auto, cpu, cuda or cuda:N")
+        require(isinstance(self.dataset, str), "dataset", self.dataset, "must be a folder path or empty (the live stream)")
         check_finite("lr_decay_from", self.lr_decay_from)
         require(0.0 <= self.lr_decay_from <= 1.0, "lr_decay_from", self.lr_decay_from, "must be in [0, 1]")

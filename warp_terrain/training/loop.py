@@ -26,7 +26,8 @@ from ..models import build_model
 from ..models.fill import unobserved_weight_map
 from ..sim.device import resolve_device
 from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, resolve_resume, rng_state, set_rng_state
-from .stream import training_batches, validation_set
+from .distributed import NullWriter, close_ranks, init_ranks
+from .stream import batch_seed, training_batches, validation_set
 from .visuals import map_grid
 
 if TYPE_CHECKING:
@@ -52,11 +53,12 @@ def predict_in_chunks(model, condition: torch.Tensor, chunk: int = 16) -> torch.
     return torch.cat([model.predict(condition[i : i + chunk]) for i in range(0, condition.shape[0], chunk)])
 
 
-def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
+def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     """Train ``cfg.model`` on the stream described by ``cfg``; write everything under ``run_dir``.
 
     Returns a summary: final and best validation RMSE on unobserved cells, the nearest-neighbour
-    fill's RMSE on the same set, wall time and paths.
+    fill's RMSE on the same set, wall time and paths. Under ``torchrun`` every rank trains on its
+    own stream and rank 0 validates, logs and checkpoints (see ``distributed.py``).
     """
     tc = cfg.train
     run_dir = Path(run_dir)
@@ -64,7 +66,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
     image_dir = run_dir / "images"
     for d in (ckpt_dir, image_dir):
         d.mkdir(parents=True, exist_ok=True)
-    device = resolve_device(None if tc.device == "auto" else tc.device)
+    ranks, device = init_ranks(resolve_device(None if tc.device == "auto" else tc.device))
+    rank = ranks.rank
     threads = tc.threads or (max(1, (os.cpu_count() or 1) - tc.workers) if device == "cpu" else 0)
     if threads:
         torch.set_num_threads(threads)
@@ -72,6 +75,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
     np.random.seed(tc.seed)
 
     model = build_model(cfg.model).to(device)
+    if ranks.distributed:
+        model.distribute([ranks.local_rank] if device.startswith("cuda") else None)
     start, best = 0, math.inf
     resume_from = resolve_resume(tc.resume, run_dir)
     if resume_from is not None:
@@ -79,18 +84,21 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
         model.load_state_dict(state["model"])
         start, best = int(state["step"]), float(state["best"])
         set_rng_state(state["rng"])
-    OmegaConf.save(OmegaConf.structured(cfg), run_dir / "run_config.yaml")
+    if ranks.main:
+        OmegaConf.save(OmegaConf.structured(cfg), run_dir / "run_config.yaml")
 
     sim = cfg.sim()
-    val = validation_set(sim, tc.val_size, device)
+    val = validation_set(sim, tc.val_size if ranks.main else 1, device)
     unobserved = val["mask"] == 0
     nn_rmse = masked_rmse(nearest_fill(val["scan"], val["mask"]), val["target"], unobserved)
     val_condition = model_input(val, cfg.model.in_channels)
 
-    writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None)
+    writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None) if ranks.main else NullWriter()
     base_lrs = {id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d}
 
     def validate(step: int) -> float:
+        if not ranks.main:
+            return math.nan, None
         prediction = predict_in_chunks(model, val_condition)
         rmse = masked_rmse(prediction, val["target"], unobserved)
         writer.add_scalar("val/rmse_unobserved", rmse, step)
@@ -100,13 +108,15 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
         return rmse, prediction
 
     def save(name: str, step: int) -> None:
+        if not ranks.main:
+            return
         atomic_save(
             {"model": model.state_dict(), "step": step, "best": best, "rng": rng_state(), "config": OmegaConf.to_container(OmegaConf.structured(cfg))},
             ckpt_dir / name,
         )
 
-    batches = training_batches(sim, tc.batch_size, tc.seed, rank, start, tc.steps, device, tc.workers, tc.prefetch)
-    bar = tqdm(total=tc.steps, initial=start, disable=not tc.progress, desc="train", unit="step", dynamic_ncols=True)
+    batches = training_batches(sim, tc.batch_size, tc.seed, rank, start, tc.steps, device, tc.workers, tc.prefetch, dataset=tc.dataset)
+    bar = tqdm(total=tc.steps, initial=start, disable=not (tc.progress and ranks.main), desc="train", unit="step", dynamic_ncols=True)
     wait = busy = 0.0
     pairs = 0
     t_run = time.perf_counter()
@@ -149,7 +159,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
             if rmse < best:
                 best = rmse
                 save(BEST, done)
-        if done % tc.image_every == 0 or done == tc.steps:
+        if ranks.main and (done % tc.image_every == 0 or done == tc.steps):
             if last_prediction is None:
                 last_prediction = predict_in_chunks(model, val_condition)
                 model.train()
@@ -162,6 +172,11 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
 
     if start >= tc.steps:  # nothing left to train: score what was loaded
         rmse, last_prediction = validate(tc.steps)
+    if not ranks.main:
+        summary = {"rank": rank, "steps": tc.steps, "first_batch_seeds": [batch_seed(tc.seed, rank, s) for s in range(start, min(start + 8, tc.steps))]}
+        (run_dir / f"summary_rank{rank}.json").write_text(json.dumps(summary))
+        close_ranks(ranks)
+        return summary
     image_path = image_dir / "validation.png"
     _save_png(map_grid(val["scan"], val["mask"], last_prediction, val["target"]), image_path)
     summary = {
@@ -180,7 +195,10 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, rank: int = 0) -> dict:
     hparams["lidar"] = cfg.lidar.name
     writer.add_hparams(hparams, {"hparam/val_rmse_unobserved": rmse, "hparam/nearest_fill_rmse_unobserved": nn_rmse}, run_name="hparams")
     writer.close()
+    summary["world_size"] = ranks.world
+    summary["first_batch_seeds"] = [batch_seed(tc.seed, rank, s) for s in range(start, min(start + 8, tc.steps))]
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    close_ranks(ranks)
     return summary
 
 

@@ -64,8 +64,17 @@ def _init_worker(_worker_id: int) -> None:
     import warp_terrain  # noqa: F401  (quiet Warp in the worker too)
 
 
-def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, start: int, stop: int, device: str, workers: int, prefetch: int = 4):
-    """An iterator over the training batches ``start..stop-1`` (dicts of tensors with ``step``)."""
+def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, start: int, stop: int, device: str, workers: int, prefetch: int = 4, dataset: str = ""):
+    """An iterator over the training batches ``start..stop-1`` (dicts of tensors with ``step``).
+
+    ``dataset``: empty for the live stream; else a folder written by ``warp-terrain generate``,
+    read in the training process (CPU tensors; ``workers`` unused), cycling over it: batch
+    ``step`` is fixed by ``(dataset, seed, rank, step)`` (``DiskPairs.batches``), so resuming
+    sees the same batches. Its maps must have ``sim``'s size; a dataset made with another
+    config than ``sim`` gets a warning (validation still uses ``sim``).
+    """
+    if dataset:
+        return _dataset_batches(sim, str(dataset), batch_size, seed, rank, start, stop)
     on_cuda = device.startswith("cuda")
     if workers == 0 or on_cuda:
         return iter(PairStream(sim, batch_size, seed, rank, start, stop, device))
@@ -79,6 +88,23 @@ def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, star
         persistent_workers=False,
     )
     return iter(loader)
+
+
+def _dataset_batches(sim: SimConfig, dataset: str, batch_size: int, seed: int, rank: int, start: int, stop: int):
+    import warnings
+    from dataclasses import asdict
+
+    from ..export.dataset import DiskPairs
+
+    try:
+        pairs = DiskPairs(dataset)
+    except ValueError as err:
+        raise ValueError(f"train.dataset={dataset!r}: {err}") from None
+    pairs.check_compatible(sim)
+    if asdict(pairs.sim) != asdict(sim):
+        warnings.warn(f"train.dataset={dataset!r} was generated with a different terrain/lidar/data config than this run's; "
+                      "validation uses the run's config", stacklevel=2)
+    return pairs.batches(batch_size, seed, rank, start, stop)
 
 
 def validation_set(sim: SimConfig, size: int, device: str, chunk: int = 16) -> dict[str, torch.Tensor]:

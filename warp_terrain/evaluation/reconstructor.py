@@ -1,0 +1,95 @@
+"""``Reconstructor``: a trained generator that turns any point cloud into an elevation map."""
+
+from __future__ import annotations
+
+import os
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..models import ModelConfig, build_generator
+from ..pointclouds import check_points
+from ..sim.device import resolve_device
+from ..sim.projection import check_map, project_points
+
+PRETRAINED = "reconstructor.pt"
+
+
+def pretrained_path() -> Path:
+    """Where the model shipped inside the package lies."""
+    return Path(str(resources.files("warp_terrain") / "pretrained" / PRETRAINED))
+
+
+class Reconstructor:
+    """A generator with what it needs to read a point cloud: ``reconstruct(points) -> map``.
+
+    ``Reconstructor.load()`` loads the model shipped in the package (trained by this project's
+    ``train.py``; its run config lies beside it); ``Reconstructor.load(path)`` a file written by
+    ``Reconstructor.save`` or a training checkpoint. Files load with ``weights_only=True``.
+    """
+
+    def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None):
+        self.device = resolve_device(device)
+        self.generator = generator.to(self.device).eval()
+        self.model_config = model_config
+        self.meta = dict(meta or {})
+
+    # -- files --------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | os.PathLike | None = None, device=None) -> "Reconstructor":
+        path = pretrained_path() if path is None else Path(path)
+        if not path.is_file():
+            raise ValueError(f"model file {str(path)!r} does not exist")
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as err:
+            raise ValueError(f"model file {str(path)!r} cannot be read ({type(err).__name__}: {err})") from None
+        if "model" in state and "netG" in state["model"]:  # a training checkpoint
+            cfg = ModelConfig.coerce(state["model"]["config"])
+            weights, meta = state["model"]["netG"], {"config": state.get("config", {}), "step": state.get("step")}
+        elif "netG" in state and "model_config" in state:
+            cfg = ModelConfig.coerce(state["model_config"])
+            weights, meta = state["netG"], state.get("meta", {})
+        else:
+            raise ValueError(f"model file {str(path)!r} holds neither a Reconstructor nor a training checkpoint")
+        generator = build_generator(cfg)
+        generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
+        return cls(generator, cfg, meta, device)
+
+    def save(self, path: str | os.PathLike, half: bool = True) -> None:
+        """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
+        from ..training.checkpoint import atomic_save
+
+        weights = {k: (v.half() if half and v.is_floating_point() else v).cpu() for k, v in self.generator.state_dict().items()}
+        atomic_save({"netG": weights, "model_config": self.model_config.to_dict(), "meta": self.meta}, path)
+
+    # -- inference ----------------------------------------------------------------------------
+    def condition(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return scan if self.model_config.in_channels == 1 else torch.cat([scan, mask], dim=1)
+
+    @torch.no_grad()
+    def predict_maps(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """(B, 1, S, S) scan images and masks -> (B, 1, S, S) elevation maps."""
+        return self.generator(self.condition(scan.to(self.device), mask.to(self.device)))
+
+    def reconstruct(self, points, map_size: int = 121, map_cell: float = 0.25) -> np.ndarray:
+        """``(map_size, map_size)`` float32 elevation map (sensor frame) from an ``(N, 3)`` cloud.
+
+        Points are in the sensor frame (gravity-aligned, origin at the LIDAR). Rows with NaN/inf
+        are dropped with a warning; an empty cloud, a wrong shape or dtype raise ValueError.
+        """
+        check_map(map_size, map_cell)
+        if self.model_config.name == "paper" and map_size != 121:
+            raise ValueError(f"map_size={map_size}: this model is the paper's net for 121x121 maps")
+        xyz = check_points(points)
+        scan, mask = project_points(xyz, map_size=map_size, map_cell=map_cell, device=self.device)
+        if mask.sum() == 0:
+            raise ValueError(f"points: none of the {len(xyz)} points falls inside the {map_size}x{map_size} map of {map_cell} m cells")
+        return self.predict_maps(scan, mask)[0, 0].float().cpu().numpy()
+
+    def reconstruct_with_mask(self, points, map_size: int = 121, map_cell: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+        xyz = check_points(points)
+        scan, mask = project_points(xyz, map_size=map_size, map_cell=map_cell, device=self.device)
+        return self.reconstruct(xyz, map_size, map_cell), mask[0, 0].cpu().numpy()

@@ -152,3 +152,18 @@ def test_onnx_matches_torch(tmp_path, cfg):
     assert report["max_abs_diff"] < 1e-4
     with pytest.raises(ValueError, match="onnx"):
         export_onnx(generator, tmp_path / "g.txt", cfg.in_channels)
+
+
+def test_the_shipped_model_loads_with_weights_only_and_reconstructs(monkeypatch):
+    from warp_terrain.evaluation.reconstructor import pretrained_path
+
+    path = pretrained_path()
+    assert path.is_file() and path.stat().st_size < 8 * 2**20  # small enough to ship
+    calls = []
+    real_load = torch.load
+    monkeypatch.setattr(torch, "load", lambda *a, **k: calls.append(k.get("weights_only")) or real_load(*a, **k))
+    rec = Reconstructor.load(device="cpu")
+    assert calls == [True]
+    assert (path.parent / "run_config.yaml").is_file()  # the config it was trained with lies beside it
+    height = rec.reconstruct(_scan(seed=11))
+    assert height.shape == (121, 121) and np.isfinite(height).all()

@@ -44,7 +44,8 @@ def run_config(*overrides):
 
 def test_default_composition_is_typed_and_valid():
     cfg = run_config()
-    assert cfg.terrain.name == "octave5" and cfg.lidar.name == "hdl32e" and cfg.model.name == "paper"
+    assert cfg.terrain.name == "octave5" and cfg.lidar.name == "hdl32e"
+    assert cfg.model.name == "unet" and cfg.model.residual and cfg.model.in_channels == 2  # model=fill_residual
     assert cfg.data.map_size == 121
 
 
@@ -72,12 +73,13 @@ def test_lidar_group_selects_the_published_presets(preset):
         ("train.steps=0", "train.steps"),
         ("model.lr_g=-1", "model.lr_g"),
         ("lidar.elevations_deg=[]", "lidar.elevations_deg"),
-        ("data.map_size=64", "data.map_size"),  # the paper net is for 121x121
+        ("model=paper data.map_size=64", "data.map_size"),  # the paper net is for 121x121
+        ("model.residual=true model.in_channels=1", "model.residual"),
     ],
 )
 def test_bad_values_fail_naming_the_key(override, message):
     with pytest.raises(ValueError, match=message):
-        run_config(override)
+        run_config(*override.split())
 
 
 def test_wrong_type_or_unknown_key_fails_at_composition():

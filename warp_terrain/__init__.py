@@ -8,6 +8,7 @@ PyTorch zero-copy. The public API (names fixed by the design contract):
 - ``cast_scans``: LIDAR scans of heightfields, in each sensor frame
 - ``project_points``: point clouds to elevation maps and observation masks
 - ``generate_batch``: training pairs (scan, mask, target) from a config
+- ``Reconstructor``: ``Reconstructor.load().reconstruct(points)``, a point cloud to a full map
 - ``export_usd``: a terrain, its LIDAR points and a reconstruction as a USD stage
 """
 
@@ -32,6 +33,7 @@ from .sim import (  # noqa: E402
     lidar_preset,
     project_points,
 )
+from .evaluation.reconstructor import Reconstructor  # noqa: E402
 from .export.usd import export_usd  # noqa: E402
 
 __version__ = "0.1.0"
@@ -45,6 +47,7 @@ __all__ = [
     "TerrainConfig",
     "__version__",
     "cast_scans",
+    "Reconstructor",
     "export_usd",
     "fractal_heightfield",
     "generate_batch",

@@ -14,6 +14,7 @@ import json
 import sys
 
 from . import __version__
+from .atomic import atomic_open
 
 EXIT_USAGE = 2
 
@@ -288,7 +289,8 @@ def add_evaluate(sub) -> None:
                                    "setting and noise level, fill them with the classical baselines and optionally a "
                                    "trained model, and report RMSE/MAE on unobserved, observed and in-range cells, "
                                    "obstacle IoU, pit recall and the time per map.")
-    p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/best.pt): evaluate its model beside the baselines")
+    p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/best.pt) or Reconstructor file: evaluate its model beside the baselines")
+    p.add_argument("--pretrained", action="store_true", help="evaluate the model shipped in the package beside the baselines")
     p.add_argument("--settings", default="octave3,octave5,flat_cylinders,negative_obstacles", metavar="NAMES",
                    help="comma-separated terrain settings (conf/terrain) (default: octave3,octave5,flat_cylinders,negative_obstacles)")
     p.add_argument("--noise", type=_noise_levels, default=[0.0, 0.05, 0.10], metavar="LEVELS",
@@ -306,8 +308,6 @@ def add_evaluate(sub) -> None:
 
 
 def cmd_evaluate(args) -> int:
-    import os
-    import tempfile
     from pathlib import Path
 
     from .evaluation.baselines import BASELINES
@@ -322,7 +322,7 @@ def cmd_evaluate(args) -> int:
     if args.markdown is not None and not Path(args.markdown).resolve().parent.is_dir():
         raise ValueError(f"--markdown {args.markdown!r}: the folder does not exist")
     model_info = None
-    if args.checkpoint is not None:
+    if args.checkpoint is not None or args.pretrained:
         predictor, model_info = load_model_predictor(args.checkpoint, device=args.device)
         predictors["model"] = predictor
     if not predictors:
@@ -333,18 +333,8 @@ def cmd_evaluate(args) -> int:
         results["model"] = model_info
     if args.markdown is not None:
         out = Path(args.markdown)
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.resolve().parent)
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(format_markdown(results))
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-            os.replace(tmp, out)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_open(out, "w") as f:
+            f.write(format_markdown(results))
         progress(f"wrote {out}")
     if args.json:
         json.dump(json_ready(results), sys.stdout, indent=2, allow_nan=False)
@@ -354,8 +344,112 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------ reconstruct
+def _add_model(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", default=None, metavar="PATH",
+                   help="a Reconstructor file or training checkpoint (default: the model shipped in the package)")
+
+
+def add_reconstruct(sub) -> None:
+    p = sub.add_parser("reconstruct", help="elevation map from a point-cloud file (.npy .ply .pcd .las .laz)",
+                       description="Read a point cloud, move it into the sensor frame, project it into a map and fill "
+                                   "it in with the model. Writes an .npz (map, mask) and a PNG preview.")
+    p.add_argument("file", help="the point cloud (.npy (N,3), .ply, .pcd, .las, .laz)")
+    p.add_argument("--out", default=None, metavar="OUT.npz", help="output (default: FILE with .npz); a PNG preview is written beside it")
+    p.add_argument("--map-size", type=_positive_int, default=121, metavar="S", help="cells per side (default 121)")
+    p.add_argument("--map-cell", type=float, default=0.25, metavar="M", help="cell size in metres (default 0.25)")
+    p.add_argument("--transform", default=None, metavar="VALUES",
+                   help="points -> sensor frame: 16 comma-separated values (a 4x4 matrix, row-major) or 6 (x,y,z,roll,pitch,yaw in m and degrees)")
+    _add_model(p)
+    _add_device(p)
+    p.set_defaults(func=cmd_reconstruct)
+
+
+def cmd_reconstruct(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from .evaluation.reconstructor import Reconstructor
+    from .export.figures import save_map_preview
+    from .pointclouds import apply_transform, read_point_cloud, transform_matrix
+
+    source = Path(args.file)
+    out = Path(args.out) if args.out else source.with_suffix(".npz")
+    if out.suffix != ".npz":
+        raise ValueError(f"--out {str(out)!r}: must end in .npz")
+    if not out.resolve().parent.is_dir():
+        raise ValueError(f"--out {str(out)!r}: the folder {str(out.resolve().parent)!r} does not exist")
+    matrix = transform_matrix([float(v) for v in args.transform.split(",")]) if args.transform else None
+    points = read_point_cloud(source)
+    if matrix is not None:
+        points = apply_transform(points, matrix)
+    rec = Reconstructor.load(args.model, device=args.device)
+    height, mask = rec.reconstruct_with_mask(points, args.map_size, args.map_cell)
+    with atomic_open(out) as f:
+        np.savez_compressed(f, height=height, mask=mask, map_cell=np.float32(args.map_cell))
+    png = out.with_suffix(".png")
+    save_map_preview(height, mask, args.map_cell, png, title=source.name)
+    print(json.dumps({"npz": str(out), "png": str(png), "points": int(len(points)), "observed_cells": int(mask.sum()),
+                      "map_size": args.map_size, "map_cell": args.map_cell}))
+    return 0
+
+
+# ------------------------------------------------------------------------------ export-onnx
+def add_export_onnx(sub) -> None:
+    p = sub.add_parser("export-onnx", help="export the generator to ONNX, checked against torch with ONNX Runtime",
+                       description="Export the generator (input 'condition' (B,C,S,S), output 'height' (B,1,S,S)) and "
+                                   "check it against torch on generated scans; prints the largest difference and the "
+                                   "latency of both.")
+    p.add_argument("out", help="OUT.onnx")
+    p.add_argument("--map-size", type=_positive_int, default=121, metavar="S", help="cells per side (fixed in the graph; default 121)")
+    _add_model(p)
+    p.set_defaults(func=cmd_export_onnx)
+
+
+def cmd_export_onnx(args) -> int:
+    from . import generate_batch
+    from .evaluation.reconstructor import Reconstructor
+    from .export.onnx import check_onnx, export_onnx
+
+    rec = Reconstructor.load(args.model, device="cpu")
+    path = export_onnx(rec.generator, args.out, rec.model_config.in_channels, args.map_size)
+    batch = generate_batch(4, {"data": {"map_size": args.map_size}}, seed=0, device="cpu")
+    report = check_onnx(rec.generator, path, rec.condition(batch.scan, batch.mask))
+    report["onnx"] = str(path)
+    print(json.dumps(report))
+    if report["max_abs_diff"] > 1e-4:
+        print(f"error: ONNX differs from torch by {report['max_abs_diff']:.2e} m (> 1e-4)", file=sys.stderr)
+        return 1
+    return 0
+
+
+# ------------------------------------------------------------------------------ package-model
+def add_package_model(sub) -> None:
+    p = sub.add_parser("package-model", help="turn a training checkpoint into a small Reconstructor file",
+                       description="Keep the generator only, in fp16, with its model config and the run config it was trained with.")
+    p.add_argument("checkpoint", help="a training checkpoint (checkpoints/best.pt)")
+    p.add_argument("--out", required=True, metavar="OUT.pt")
+    p.set_defaults(func=cmd_package_model)
+
+
+def cmd_package_model(args) -> int:
+    from pathlib import Path
+
+    from .evaluation.reconstructor import Reconstructor
+
+    out = Path(args.out)
+    if not out.resolve().parent.is_dir():
+        raise ValueError(f"--out {str(out)!r}: the folder does not exist")
+    rec = Reconstructor.load(args.checkpoint, device="cpu")
+    rec.save(out)
+    print(json.dumps({"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step")}))
+    return 0
+
+
 # ------------------------------------------------------------------------------ entry point
-SUBCOMMANDS = (add_bench, add_preview, add_figures, add_export_usd, add_generate, add_evaluate)
+SUBCOMMANDS = (add_bench, add_preview, add_figures, add_export_usd, add_generate, add_evaluate, add_reconstruct, add_export_onnx,
+               add_package_model)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -188,26 +188,25 @@ def model_predictor(model, in_channels: int, chunk: int = 16) -> Predictor:
     return predict
 
 
-def load_model_predictor(path, device=None) -> tuple[Predictor, dict]:
-    """A predictor from a training checkpoint (``checkpoints/best.pt`` or ``latest.pt``) and a
-    short description of it (``{"checkpoint", "step", "in_channels", "generator"}``)."""
-    from ..models import Pix2PixModel
-    from ..training.checkpoint import load_checkpoint
+def load_model_predictor(path=None, device=None, chunk: int = 16) -> tuple[Predictor, dict]:
+    """A predictor from a training checkpoint (``checkpoints/best.pt``), a ``Reconstructor``
+    file, or (``path=None``) the model shipped in the package, and a short description of it."""
+    from .reconstructor import Reconstructor, pretrained_path
 
-    state = load_checkpoint(path)
-    if not isinstance(state, Mapping) or "model" not in state:
-        raise ValueError(f"checkpoint {str(path)!r}: no 'model' entry (is it a training checkpoint?)")
-    device = resolve_device(device)
-    model = Pix2PixModel.from_state_dict(state["model"], device=device)
-    cfg_model = (state.get("config") or {}).get("model") or state["model"].get("config") or {}
-    in_channels = int(cfg_model.get("in_channels", 1))
+    rec = Reconstructor.load(path, device=device)
+
+    def predict(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        outs = [rec.predict_maps(scan[i : i + chunk], mask[i : i + chunk])[:, :1].float() for i in range(0, scan.shape[0], chunk)]
+        return torch.cat(outs).to(scan.device)
+
     info = {
-        "checkpoint": str(path),
-        "step": int(state["step"]) if "step" in state else None,
-        "in_channels": in_channels,
-        "generator": cfg_model.get("name"),
+        "checkpoint": str(path if path is not None else pretrained_path()),
+        "step": rec.meta.get("step"),
+        "in_channels": rec.model_config.in_channels,
+        "generator": rec.model_config.name,
+        "residual": rec.model_config.residual,
     }
-    return model_predictor(model, in_channels), info
+    return predict, info
 
 
 # ------------------------------------------------------------------------------ evaluation

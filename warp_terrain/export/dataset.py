@@ -32,7 +32,6 @@ import hashlib
 import io
 import json
 import os
-import tempfile
 import zipfile
 from collections import OrderedDict
 from collections.abc import Iterator
@@ -42,6 +41,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch.utils.data import Dataset
+
+from ..atomic import atomic_open
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "MANIFEST", "DatasetError", "DiskPairs", "shard_name", "shard_seed", "write_dataset"]
 
@@ -85,22 +86,8 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_open(path) as f:
+        f.write(data)
 
 
 def _positive_int(name: str, value) -> int:

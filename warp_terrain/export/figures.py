@@ -17,12 +17,11 @@ touched); PNGs are written atomically (temporary file in the target folder, then
 from __future__ import annotations
 
 import io
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_open
 from ..sim import SimConfig, generate_batch, resolve_device
 
 __all__ = [
@@ -206,29 +205,17 @@ def save_figure(fig, out, dpi: int = 80, colors: int | None = 256) -> Path:
     PNG for these plots, with no visible change); None keeps full colour.
     """
     out = _check_out(out)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            if colors:
-                from PIL import Image
+    with atomic_open(out) as f:
+        if colors:
+            from PIL import Image
 
-                buf = io.BytesIO()
-                fig.savefig(buf, format="png", dpi=dpi)
-                buf.seek(0)
-                with Image.open(buf) as img:
-                    img.convert("RGB").quantize(colors=int(colors), method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(f, format="PNG", optimize=True)
-            else:
-                fig.savefig(f, format="png", dpi=dpi)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, out)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+            buf = io.BytesIO()
+            fig.savefig(buf, format="png", dpi=dpi)
+            buf.seek(0)
+            with Image.open(buf) as img:
+                img.convert("RGB").quantize(colors=int(colors), method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).save(f, format="PNG", optimize=True)
+        else:
+            fig.savefig(f, format="png", dpi=dpi)
     return out
 
 
@@ -628,3 +615,22 @@ def write_usd_figure(path, out, dpi: int = 80) -> Path:
     """Draw the stage at ``path`` (``usd_figure``) into the PNG ``out``, atomically."""
     out = _check_out(out)
     return save_figure(usd_figure(path), out, dpi=int(dpi))
+
+
+def save_map_preview(height, mask, map_cell: float, out, title: str = "", dpi: int = 80) -> Path:
+    """A PNG of a reconstructed map beside its observation mask (axes in metres)."""
+    height, mask = np.asarray(height), np.asarray(mask)
+    extent = _grid_extent(height.shape[0], map_cell)
+    fig = _new_figure((10, 4.4))
+    axes = fig.subplots(1, 2)
+    im = axes[0].imshow(height.T, origin="lower", extent=extent, cmap="viridis")
+    axes[0].set_title("reconstructed elevation (sensor frame)")
+    fig.colorbar(im, ax=axes[0], label="z (m)")
+    axes[1].imshow(mask.T, origin="lower", extent=extent, cmap="gray", vmin=0, vmax=1)
+    axes[1].set_title(f"observed cells ({100 * mask.mean():.1f} %)")
+    for ax in axes:
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    if title:
+        fig.suptitle(title)
+    return save_figure(fig, out, dpi=dpi)

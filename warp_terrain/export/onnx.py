@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from ..atomic import atomic_path
 
 
 def export_onnx(generator: torch.nn.Module, path: str | os.PathLike, in_channels: int, map_size: int = 121, opset: int = 17) -> Path:
@@ -22,26 +23,19 @@ def export_onnx(generator: torch.nn.Module, path: str | os.PathLike, in_channels
         raise ValueError(f"{str(path)!r}: the output folder {str(path.parent)!r} does not exist")
     generator = generator.eval().cpu()
     example = torch.zeros(1, in_channels, map_size, map_size)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".onnx", dir=path.parent)
-    os.close(fd)
-    try:
-        with warnings.catch_warnings():
-            # the spatial size is fixed at export (the nets' padding is computed from it)
-            warnings.simplefilter("ignore", torch.jit.TracerWarning)
-            torch.onnx.export(
-                generator,
-                (example,),
-                tmp,
-                input_names=["condition"],
-                output_names=["height"],
-                dynamic_axes={"condition": {0: "batch"}, "height": {0: "batch"}},
-                opset_version=opset,
-                dynamo=False,
-            )
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_path(path) as tmp, warnings.catch_warnings():
+        # the spatial size is fixed at export (the nets' padding is computed from it)
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
+        torch.onnx.export(
+            generator,
+            (example,),
+            str(tmp),
+            input_names=["condition"],
+            output_names=["height"],
+            dynamic_axes={"condition": {0: "batch"}, "height": {0: "batch"}},
+            opset_version=opset,
+            dynamo=False,
+        )
     return path
 
 

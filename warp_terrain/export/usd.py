@@ -37,10 +37,11 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from ..atomic import atomic_path
 
 __all__ = ["USD_SUFFIXES", "check_usd_path", "export_usd", "grid_faces", "grid_normals", "grid_points"]
 
@@ -386,29 +387,17 @@ def export_usd(
 def _write_atomically(stage, path: Path) -> None:
     from pxr import Sdf, Tf
 
-    parent = path.parent if str(path.parent) else Path(".")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=parent)
-    except OSError as err:
-        raise ValueError(f"path={str(path)!r}: cannot write in {str(parent)!r} ({err.strerror or err})") from None
-    os.close(fd)
-    try:
-        try:
-            ok = stage.GetRootLayer().Export(tmp)
-        except Tf.ErrorException as err:
-            raise ValueError(f"path={str(path)!r}: USD could not write the stage ({' '.join(str(err).split())[:300]})") from None
-        if not ok:
-            raise ValueError(f"path={str(path)!r}: USD could not write the stage")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+        with atomic_path(path) as tmp:
+            try:
+                ok = stage.GetRootLayer().Export(str(tmp))
+            except Tf.ErrorException as err:
+                raise ValueError(f"path={str(path)!r}: USD could not write the stage ({' '.join(str(err).split())[:300]})") from None
+            if not ok:
+                raise ValueError(f"path={str(path)!r}: USD could not write the stage")
+    except ValueError as err:
+        message = str(err)
+        raise ValueError(message if message.startswith("path=") else f"path={message}") from None
     layer = Sdf.Layer.Find(str(path))  # a stage of the old file open in this process: show the new one
     if layer is not None:
         layer.Reload(True)

@@ -1,8 +1,8 @@
 """Domain randomisation: each batch a different world, so a model meets no single default.
 
 Users' terrain and sensors differ from any training default. With ``data.randomize.enabled``,
-every batch draws its own sensor (any preset), mount height, range noise, octave count and
-obstacle mix, and every sample its own relief amplitude and feature size (log-uniform, from
+every batch draws its own sensor (any preset), mount height, range noise, image noise (up to
+``noise_max``), octave count and obstacle mix, and every sample its own relief amplitude and feature size (log-uniform, from
 centimetres to metres and from a few metres to tens of metres). The draws come from the batch
 seed, so a randomised stream is as reproducible as a fixed one.
 """
@@ -37,6 +37,7 @@ class RandomizeConfig:
     range_noise_max: float = 0.03
     obstacle_probability: float = 0.4
     azimuth_step_min_deg: float = 0.4
+    noise_max: float = 0.0
 
     def validate(self) -> None:
         for key in ("amplitude", "feature_size", "mount_height"):
@@ -51,6 +52,7 @@ class RandomizeConfig:
             lidar_preset(name)  # raises naming an unknown preset
         require(0.0 <= self.range_noise_max < 1.0, "randomize.range_noise_max", self.range_noise_max, "must be in [0, 1)")
         require(0.0 <= self.obstacle_probability <= 1.0, "randomize.obstacle_probability", self.obstacle_probability, "must be in [0, 1]")
+        require(0.0 <= self.noise_max <= 1.0, "randomize.noise_max", self.noise_max, "must be in [0, 1]")
         require(self.azimuth_step_min_deg >= 0.0, "randomize.azimuth_step_min_deg", self.azimuth_step_min_deg, "must be >= 0")
 
 
@@ -84,6 +86,8 @@ def randomize(sim, batch: int, seed: int):
     for kind in OBSTACLE_KINDS:
         chosen = rng.uniform() < r.obstacle_probability
         setattr(out.terrain, kind, copy.deepcopy(OBSTACLE_RANGES[kind]) if chosen else ObstacleConfig())
+    if r.noise_max > 0:
+        out.data.noise = float(rng.uniform(0.0, r.noise_max))
     amplitudes = log_uniform(rng, r.amplitude_min, r.amplitude_max, batch)
     feature_sizes = log_uniform(rng, r.feature_size_min, r.feature_size_max, batch)
     return out, amplitudes, feature_sizes

@@ -61,7 +61,7 @@ class PairStream(IterableDataset):
 
 def _init_worker(_worker_id: int) -> None:
     torch.set_num_threads(1)
-    import warp_terrain  # noqa: F401  (quiet Warp in the worker too)
+    import warp_terrain  # noqa: F401  (sets Warp's log level in the worker too)
 
 
 def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, start: int, stop: int, device: str, workers: int, prefetch: int = 4, dataset: str = ""):

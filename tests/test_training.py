@@ -137,6 +137,7 @@ def test_training_logs_checkpoints_and_resumes_exactly(tmp_path):
         assert tag in tags["scalars"], tag
     assert [e.step for e in ea.Scalars("loss/l1")] == [1, 2, 3, 4]
     assert tags["images"], "no image grid logged"
+    assert {"figures/fig5_reconstruction_3d", "figures/fig6_input_prediction_truth"} <= set(tags["images"])
     state = load_checkpoint(first["checkpoint"])  # weights_only=True inside
     assert state["step"] == 4
 

@@ -27,7 +27,9 @@ from ..models.fill import unobserved_weight_map
 from ..sim.device import resolve_device
 from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, resolve_resume, rng_state, set_rng_state
 from .distributed import NullWriter, close_ranks, init_ranks
-from .stream import batch_seed, training_batches, validation_set
+from .stream import VALIDATION_SEED_BASE, batch_seed, training_batches, validation_set
+
+FIGURE_SEED = VALIDATION_SEED_BASE + (1 << 20)  # a validation-range seed the validation set does not use
 from .visuals import map_grid
 
 if TYPE_CHECKING:
@@ -177,6 +179,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
         (run_dir / f"summary_rank{rank}.json").write_text(json.dumps(summary))
         close_ranks(ranks)
         return summary
+    log_paper_figures(writer, model, cfg, device, tc.steps)
     image_path = image_dir / "validation.png"
     _save_png(map_grid(val["scan"], val["mask"], last_prediction, val["target"]), image_path)
     summary = {
@@ -200,6 +203,18 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     close_ranks(ranks)
     return summary
+
+
+def log_paper_figures(writer, model, cfg: RunConfig, device: str, step: int) -> None:
+    """The paper's model figures (Figs. 5 and 6) of the final model, into TensorBoard."""
+    from ..export.figures import prediction_figure, reconstruction_3d_figure
+
+    def predictor(condition: torch.Tensor) -> torch.Tensor:
+        return model.predict(condition.to(device))
+
+    sim, channels, seed = cfg.sim(), cfg.model.in_channels, FIGURE_SEED
+    writer.add_figure("figures/fig5_reconstruction_3d", reconstruction_3d_figure(predictor, channels, sim, seed=seed, device=device), step)
+    writer.add_figure("figures/fig6_input_prediction_truth", prediction_figure(predictor, channels, sim, seed=seed, device=device), step)
 
 
 def _save_png(grid: np.ndarray, path: Path) -> None:

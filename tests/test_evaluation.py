@@ -298,3 +298,19 @@ def test_evaluate_cli_quick_json(tmp_path, capsys):
     assert main(["evaluate", "--baselines", "nope"]) == 2
     assert main(["evaluate", "--settings", "nope", "--quick"]) == 2
     assert json_ready({"a": [float("nan"), 1.0]}) == {"a": [None, 1.0]}
+
+
+def test_dem_patches_keep_the_real_slopes_and_are_deterministic():
+    import matplotlib.cbook as cbook
+
+    from warp_terrain.evaluation.robustness import DEM_PIXEL_M, dem_heightfields
+
+    a = dem_heightfields(3, 65, 0.25, seed=2)
+    b = dem_heightfields(3, 65, 0.25, seed=2)
+    assert a.shape == (3, 65, 65) and a.dtype == np.float32 and np.array_equal(a, b)
+    assert np.all(a[:, 32, 32] == 0.0)  # centred on the sensor's ground
+    # the steepest grade of a patch never exceeds the DEM's own steepest grade
+    dem = np.asarray(cbook.get_sample_data("jacksboro_fault_dem.npz")["elevation"], np.float64)
+    dem_grade = max(np.abs(np.diff(dem, axis=0)).max(), np.abs(np.diff(dem, axis=1)).max()) / DEM_PIXEL_M
+    patch_grade = max(np.abs(np.diff(a, axis=1)).max(), np.abs(np.diff(a, axis=2)).max()) / 0.25
+    assert 0 < patch_grade <= dem_grade + 1e-6

@@ -291,6 +291,8 @@ def add_evaluate(sub) -> None:
                                    "obstacle IoU, pit recall and the time per map.")
     p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/best.pt) or Reconstructor file: evaluate its model beside the baselines")
     p.add_argument("--pretrained", action="store_true", help="evaluate the model shipped in the package beside the baselines")
+    p.add_argument("--robustness", action="store_true",
+                   help="instead, score on settings outside the training ranges and on real DEM terrain (matplotlib's sample DEM)")
     p.add_argument("--settings", default="octave3,octave5,flat_cylinders,negative_obstacles", metavar="NAMES",
                    help="comma-separated terrain settings (conf/terrain) (default: octave3,octave5,flat_cylinders,negative_obstacles)")
     p.add_argument("--noise", type=_noise_levels, default=[0.0, 0.05, 0.10], metavar="LEVELS",
@@ -327,6 +329,16 @@ def cmd_evaluate(args) -> int:
         predictors["model"] = predictor
     if not predictors:
         raise ValueError("nothing to evaluate: --baselines none needs --checkpoint")
+    if args.robustness:
+        from .evaluation.robustness import evaluate_robustness, robustness_markdown
+
+        results = evaluate_robustness(predictors, size=size if args.size or args.quick else 32, device=args.device or "cpu", progress=progress)
+        text = robustness_markdown(results)
+        if args.markdown is not None:
+            with atomic_open(Path(args.markdown), "w") as f:
+                f.write(text)
+        print(json.dumps(json_ready(results), indent=2, allow_nan=False) if args.json else text)
+        return 0
     results = evaluate(predictors, settings=args.settings, noise=args.noise, size=size, lidar=args.lidar,
                        device=args.device, figures=args.figures, progress=progress)
     if model_info is not None:

@@ -198,3 +198,18 @@ def test_torchrun_ddp_two_gloo_ranks_train_on_different_data(tmp_path):
     assert main["world_size"] == 2 and main["steps"] == 3
     assert set(main["first_batch_seeds"]).isdisjoint(other["first_batch_seeds"])  # ranks see different data
     assert load_checkpoint(main["checkpoint"])["step"] == 3
+
+
+def test_slurm_launcher_config_composes():
+    register_configs()
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["hydra/launcher=slurm_gpu"], return_hydra_config=True)
+    assert cfg.hydra.launcher._target_.endswith("SlurmLauncher")
+    assert cfg.hydra.launcher.gpus_per_node == 1
+
+
+def test_sweep_through_the_submitit_local_launcher(tmp_path):
+    out = _train_py("-m", "hydra/launcher=submitit_local", *TINY, "train.steps=2", "train.val_every=2",
+                    "terrain=octave3,octave5", f"hydra.sweep.dir={tmp_path}/sweep", "hydra.launcher.timeout_min=5", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert len(list((tmp_path / "sweep").glob("*/summary.json"))) == 2

@@ -17,7 +17,6 @@ import time
 from collections.abc import Callable, Mapping
 
 import numpy as np
-import torch
 from scipy import ndimage
 
 from ..sim.batch import generate_batch, terrain_size

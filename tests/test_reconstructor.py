@@ -167,3 +167,20 @@ def test_the_shipped_model_loads_with_weights_only_and_reconstructs(monkeypatch)
     assert (path.parent / "run_config.yaml").is_file()  # the config it was trained with lies beside it
     height = rec.reconstruct(_scan(seed=11))
     assert height.shape == (121, 121) and np.isfinite(height).all()
+
+
+def test_reconstruct_command_writes_map_and_preview(tmp_path, capsys):
+    from warp_terrain.cli import main
+
+    cloud = tmp_path / "cloud.ply"
+    points = _scan(seed=4)
+    _write("ply", cloud, points + np.array([0.0, 0.0, 1.9], np.float32))  # a cloud in a ground frame
+    out = tmp_path / "map.npz"
+    assert main(["reconstruct", str(cloud), "--out", str(out), "--transform", "0,0,-1.9,0,0,0"]) == 0
+    with np.load(out) as f:
+        assert f["height"].shape == (121, 121) and f["mask"].sum() > 100
+        expected = Reconstructor.load(device="cpu").reconstruct(points)
+        np.testing.assert_allclose(f["height"], expected, atol=1e-4)
+    assert out.with_suffix(".png").stat().st_size > 0
+    assert main(["reconstruct", str(tmp_path / "missing.las")]) == 2
+    assert "missing.las" in capsys.readouterr().err

@@ -75,3 +75,11 @@ def test_preview_rejects_non_png(tmp_path, capsys):
 def test_parser_lists_subcommands():
     help_text = build_parser().format_help()
     assert "bench" in help_text and "preview" in help_text
+
+
+def test_bench_loader_compares_worker_processes(capsys):
+    assert main(["bench", "--json", "--quick", "--only", "loader"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    loader = report["results"]["loader"] if "results" in report else report["loader"]
+    assert [r["workers"] for r in loader["runs"]] == [0, 1, 2]
+    assert all(r["pairs_per_s"] > 0 for r in loader["runs"])

@@ -214,10 +214,34 @@ def bench_stream(device=None, quick: bool = False, batches: Iterable[int] | None
     return _result("stream", device, params, pairs_per_s={str(r["batch"]): r["pairs_per_s"] for r in runs}, runs=runs)
 
 
+def bench_loader(device=None, quick: bool = False, workers: Iterable[int] = (0, 1, 2), batch: int = 8) -> dict:
+    """The training stream (default data, batch 8) as training pulls it: in-process and with
+    generator worker processes (CPU only; on CUDA generation stays in-process)."""
+    from .config import RunConfig
+    from .training.stream import training_batches
+
+    device = resolve_device(device)
+    sim = RunConfig().sim()
+    count = 2 if quick else 12
+    runs = []
+    for n in workers if device == "cpu" else (0,):
+        it = training_batches(sim, batch, seed=SEED, rank=0, start=0, stop=count + 1, device=device, workers=int(n), prefetch=4)
+        next(it)  # start-up (process spawn, kernel load) excluded
+        t = time.perf_counter()
+        for _ in range(count):
+            next(it)
+        dt = time.perf_counter() - t
+        runs.append({"workers": int(n), "batches": count, "seconds": dt, "pairs_per_s": batch * count / dt})
+        del it
+    params = {"batch": batch, "lidar": sim.lidar.name, "map_size": sim.data.map_size, "seed": SEED}
+    return _result("loader", device, params, runs=runs, pairs_per_s={str(r["workers"]): r["pairs_per_s"] for r in runs})
+
+
 BENCHMARKS: dict[str, Callable[..., dict]] = {
     "noise": bench_noise,
     "rays": bench_rays,
     "stream": bench_stream,
+    "loader": bench_loader,
 }
 
 
@@ -292,6 +316,11 @@ def format_table(report: dict) -> str:
             rows.append(("", "  terrain / ray cast / projection+truth",
                          " / ".join(_ms(b[k]) for k in ("terrain", "ray_cast", "projection_truth")),
                          " / ".join(f"{100 * f[k]:.0f}%" for k in ("terrain", "ray_cast", "projection_truth"))))
+    if "loader" in res:
+        r, p = res["loader"], res["loader"]["params"]
+        for run in r["runs"]:
+            rows.append((f"loader w={run['workers']}", f"training stream, {p['lidar']}, batch {p['batch']}, {run['workers']} worker processes",
+                         _ms(run["seconds"] / run["batches"]), f"{_rate(run['pairs_per_s'])}pairs/s"))
     widths = [max(len(row[i]) for row in rows) for i in range(4)]
     for k, row in enumerate(rows):
         lines.append("  ".join(cell.ljust(w) if i < 3 else cell for i, (cell, w) in enumerate(zip(row, widths))).rstrip())

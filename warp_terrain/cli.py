@@ -18,7 +18,7 @@ from .atomic import atomic_open
 
 EXIT_USAGE = 2
 
-BENCH_NAMES = ("noise", "rays", "stream")
+BENCH_NAMES = ("noise", "rays", "stream", "loader")
 
 
 # ------------------------------------------------------------------------------ argument types

@@ -3,7 +3,8 @@
 Batch ``step`` of rank ``rank`` is generated from ``batch_seed(seed, rank, step)``, so any batch
 can be regenerated from its coordinates: a resumed run sees exactly the batches an
 uninterrupted run would, and ranks and workers never repeat each other. Training seeds lie in
-``[0, 2**30)``, validation seeds in ``[2**30, 2**31)``: the two never meet.
+``[0, 2**30)``, validation seeds are ``2**30 + chunk`` and the evaluation test sets start at
+``2**31 - 2**24``: the three never meet.
 
 On the CPU a Warp launch is single-threaded and holds the interpreter, so generation runs in
 worker processes (``torch.utils.data.DataLoader`` with the ``spawn`` context; worker ``k``

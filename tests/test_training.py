@@ -213,3 +213,25 @@ def test_sweep_through_the_submitit_local_launcher(tmp_path):
                     "terrain=octave3,octave5", f"hydra.sweep.dir={tmp_path}/sweep", "hydra.launcher.timeout_min=5", cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-2000:]
     assert len(list((tmp_path / "sweep").glob("*/summary.json"))) == 2
+
+
+class _Payload:
+    """Unpickling this would create a file: a stand-in for code planted in a checkpoint."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+@pytest.mark.parametrize("loader", ["checkpoint", "reconstructor"])
+def test_a_planted_pickle_payload_never_runs(tmp_path, loader):
+    from warp_terrain.evaluation.reconstructor import Reconstructor
+
+    marker = tmp_path / "pwned"
+    path = tmp_path / "evil.pt"
+    torch.save({"model": _Payload(marker), "step": 1}, path)
+    with pytest.raises(ValueError, match="evil.pt"):
+        load_checkpoint(path) if loader == "checkpoint" else Reconstructor.load(path)
+    assert not marker.exists()

@@ -16,17 +16,20 @@ import warp as wp
 
 
 @wp.func
+def plane_height(h00: float, h10: float, h01: float, h11: float, a: float, c: float, upper: bool) -> float:
+    """Height of a cell's triangle A (``upper``, a >= c) or B, extended as a plane, at (a, c),
+    from the heights of its corners (i, j), (i+1, j), (i, j+1), (i+1, j+1)."""
+    if upper:
+        return h00 + (h10 - h00) * a + (h11 - h10) * c
+    return h00 + (h11 - h01) * a + (h01 - h00) * c
+
+
+@wp.func
 def cell_plane_height(
     heights: wp.array3d(dtype=float), b: int, i: int, j: int, a: float, c: float, upper: bool
 ) -> float:
     """Height of cell (i, j)'s triangle A (``upper``) or B, extended as a plane, at (a, c)."""
-    h00 = heights[b, i, j]
-    h11 = heights[b, i + 1, j + 1]
-    if upper:
-        h10 = heights[b, i + 1, j]
-        return h00 + (h10 - h00) * a + (h11 - h10) * c
-    h01 = heights[b, i, j + 1]
-    return h00 + (h11 - h01) * a + (h01 - h00) * c
+    return plane_height(heights[b, i, j], heights[b, i + 1, j], heights[b, i, j + 1], heights[b, i + 1, j + 1], a, c, upper)
 
 
 @wp.func

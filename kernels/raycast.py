@@ -18,6 +18,7 @@ after noise, or dropped) are written as NaN.
 import warp as wp
 
 from .frames import dihedral_apply, sample_transform
+from .heightfield import plane_height
 from .rng import STREAM_RAYS, stream_state
 
 NO_HIT = wp.constant(-1.0)
@@ -32,14 +33,6 @@ def slab_exit(origin: float, direction: float, lo: float, hi: float) -> float:
     if direction < 0.0:
         return (lo - origin) / direction
     return FAR
-
-
-@wp.func
-def plane_height(h00: float, h10: float, h01: float, h11: float, a: float, c: float, upper: bool) -> float:
-    """Height of triangle A (``upper``, a >= c) or B of a cell, extended as a plane, at (a, c)."""
-    if upper:
-        return h00 + (h10 - h00) * a + (h11 - h10) * c
-    return h00 + (h11 - h01) * a + (h01 - h00) * c
 
 
 @wp.func

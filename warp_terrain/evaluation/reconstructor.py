@@ -80,6 +80,10 @@ class Reconstructor:
         Points are in the sensor frame (gravity-aligned, origin at the LIDAR). Rows with NaN/inf
         are dropped with a warning; an empty cloud, a wrong shape or dtype raise ValueError.
         """
+        return self.reconstruct_with_mask(points, map_size, map_cell)[0]
+
+    def reconstruct_with_mask(self, points, map_size: int = 121, map_cell: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+        """The map and the observation mask it was filled from, projecting the cloud once."""
         check_map(map_size, map_cell)
         if self.model_config.name == "paper" and map_size != 121:
             raise ValueError(f"map_size={map_size}: this model is the paper's net for 121x121 maps")
@@ -87,9 +91,5 @@ class Reconstructor:
         scan, mask = project_points(xyz, map_size=map_size, map_cell=map_cell, device=self.device)
         if mask.sum() == 0:
             raise ValueError(f"points: none of the {len(xyz)} points falls inside the {map_size}x{map_size} map of {map_cell} m cells")
-        return self.predict_maps(scan, mask)[0, 0].float().cpu().numpy()
-
-    def reconstruct_with_mask(self, points, map_size: int = 121, map_cell: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
-        xyz = check_points(points)
-        scan, mask = project_points(xyz, map_size=map_size, map_cell=map_cell, device=self.device)
-        return self.reconstruct(xyz, map_size, map_cell), mask[0, 0].cpu().numpy()
+        height = self.predict_maps(scan, mask)[0, 0].float().cpu().numpy()
+        return height, mask[0, 0].cpu().numpy()

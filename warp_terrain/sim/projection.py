@@ -51,7 +51,7 @@ def project_points(points, map_size: int = 121, map_cell: float = 0.25, device=N
     device = resolve_device(device)
     batch, rays = shape[0], shape[1]
     if rays == 0:
-        zeros = torch.zeros((batch, 1, map_size, map_size), device=device.replace("cuda:0", "cuda:0"))
+        zeros = torch.zeros((batch, 1, map_size, map_size), device=device)
         return zeros, zeros.clone()
     if isinstance(points, torch.Tensor) and not points.is_floating_point():
         points = points.float()

@@ -98,7 +98,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None) if ranks.main else NullWriter()
     base_lrs = {id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d}
 
-    def validate(step: int) -> float:
+    def validate(step: int) -> tuple[float, torch.Tensor | None]:
         if not ranks.main:
             return math.nan, None
         prediction = predict_in_chunks(model, val_condition)

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from .models.config import ModelConfig
 from .sim.batch import DataConfig, SimConfig
@@ -55,7 +56,23 @@ def validate_run(cfg: RunConfig) -> RunConfig:
         raise ValueError(f"data.map_size={cfg.data.map_size}: model=paper is Table 2's net for 121x121 maps; use model=unet for other sizes")
     if cfg.model.in_channels not in (1, 2):
         raise ValueError(f"model.in_channels={cfg.model.in_channels}: inputs are the scan (1) or the scan and its mask (2)")
+    if cfg.model.out_channels != 1:
+        raise ValueError(f"model.out_channels={cfg.model.out_channels}: the generator predicts one height map (1)")
+    _check_obstacle_room(cfg)
     return cfg
+
+
+def _check_obstacle_room(cfg: RunConfig) -> None:
+    """Obstacles need somewhere to stand: ``keep_out`` must leave part of their region free."""
+    terrain = cfg.terrain
+    if not terrain.has_obstacles():
+        return
+    region = terrain.obstacle_region or 0.5 * cfg.data.map_size * cfg.data.map_cell
+    if terrain.keep_out >= region:
+        raise ValueError(
+            f"terrain.keep_out={terrain.keep_out}: leaves no room for obstacles in the +-{region:g} m "
+            "region around the sensor (lower keep_out or raise terrain.obstacle_region)"
+        )
 
 
 def to_run_config(cfg) -> RunConfig:
@@ -64,5 +81,8 @@ def to_run_config(cfg) -> RunConfig:
         return validate_run(cfg)
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
-    merged = OmegaConf.merge(OmegaConf.structured(RunConfig), cfg)
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(RunConfig), cfg)
+    except OmegaConfBaseException as err:  # wrong type or unknown key: one line naming it
+        raise ValueError(f"{err.full_key}: {str(err.msg).splitlines()[0]}") from None
     return validate_run(OmegaConf.to_object(merged))

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..paths import file_name, output_path
 from ..sim import SimConfig, generate_batch, lidar_preset, resolve_device
 from ..sim.terrain import OBSTACLE_KINDS, ObstacleConfig
 from .baselines import BASELINES
@@ -350,7 +351,7 @@ def evaluate(
             maps += len(ts)
             results["settings"].append(entry)
             if figures is not None:
-                path = figures / f"{ts.terrain}_noise{ts.noise:g}.png"
+                path = output_path(figures, file_name(f"{ts.terrain}_noise{ts.noise:g}.png"))
                 write_figure(path, ts, predictions, index=figure_sample)
                 say(f"  wrote {path}")
     results["ms_per_map"] = {name: 1000.0 * s / maps for name, s in seconds.items()}

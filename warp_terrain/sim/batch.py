@@ -15,6 +15,7 @@ from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig, lidar_preset
+from .memory import check_batch_fits
 from .projection import bin_into_maps, check_map
 from .randomize import RandomizeConfig, randomize
 from .scan import as_heightfields, trace
@@ -48,8 +49,7 @@ class DataConfig:
 
     def validate(self) -> None:
         check_map(self.map_size, self.map_cell)
-        if self.randomize.enabled:
-            self.randomize.validate()
+        self.randomize.validate()
         check_finite("noise", self.noise)
         require(0.0 <= self.noise <= 1.0, "noise", self.noise, "must be in [0, 1] (a fraction of the height range)")
         require(isinstance(self.truth_samples, int) and self.truth_samples >= 1, "truth_samples", self.truth_samples, "must be an integer >= 1")
@@ -188,6 +188,8 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
         sim, amplitude, feature_size = randomize(sim, batch, seed)
     if heights is not None:
         heights, shape = as_heightfields(heights)
+    check_batch_fits(batch, terrain_size(sim) if heights is None else max(shape[1:]), sim.lidar.num_rays, sim.data.map_size, device)
+    if heights is not None:
         require(shape[0] == batch, "heights", f"shape {shape}", f"needs batch={batch} terrains")
         reach = 0.5 * (min(shape[1], shape[2]) - 1) * sim.terrain.cell
         need = 0.5 * sim.data.map_size * sim.data.map_cell

@@ -112,6 +112,8 @@ class LidarConfig:
             if f.name in ("name", "source"):
                 if not isinstance(getattr(self, f.name), str):
                     raise ValueError(f"{f.name} must be a string, got {getattr(self, f.name)!r}")
+                if f.name == "name" and not self.name.strip():
+                    raise ValueError(f"name={self.name!r}: must be a non-empty label")
             elif f.name != "elevations_deg":
                 _finite_number(f.name, getattr(self, f.name))
 

@@ -46,10 +46,11 @@ class RandomizeConfig:
             check_finite(f"randomize.{key}_max", hi)
             require(lo > 0, f"randomize.{key}_min", lo, "must be > 0")
             require(hi >= lo, f"randomize.{key}_max", hi, f"must be >= {key}_min")
-        require(1 <= self.octaves_min <= self.octaves_max <= 16, "randomize.octaves_max", self.octaves_max, "needs 1 <= octaves_min <= octaves_max <= 16")
+        require(1 <= self.octaves_min <= 16, "randomize.octaves_min", self.octaves_min, "must be in [1, 16]")
+        require(self.octaves_min <= self.octaves_max <= 16, "randomize.octaves_max", self.octaves_max, "must be in [octaves_min, 16]")
         require(len(self.lidars) > 0, "randomize.lidars", self.lidars, "must name at least one preset")
-        for name in self.lidars:
-            lidar_preset(name)  # raises naming an unknown preset
+        unknown = [name for name in self.lidars if name not in LIDAR_PRESETS]
+        require(not unknown, "randomize.lidars", list(self.lidars), f"unknown preset(s) {', '.join(map(str, unknown))}; choose from {', '.join(LIDAR_PRESETS)}")
         require(0.0 <= self.range_noise_max < 1.0, "randomize.range_noise_max", self.range_noise_max, "must be in [0, 1)")
         require(0.0 <= self.obstacle_probability <= 1.0, "randomize.obstacle_probability", self.obstacle_probability, "must be in [0, 1]")
         require(0.0 <= self.noise_max <= 1.0, "randomize.noise_max", self.noise_max, "must be in [0, 1]")

@@ -83,6 +83,7 @@ class TerrainConfig:
     ditches: ObstacleConfig = field(default_factory=ObstacleConfig)
 
     def validate(self) -> None:
+        require(isinstance(self.name, str) and self.name.strip() != "", "name", self.name, "must be a non-empty label")
         require(isinstance(self.octaves, int) and self.octaves >= 1, "octaves", self.octaves, "must be an integer >= 1")
         require(self.octaves <= 16, "octaves", self.octaves, "must be <= 16")
         for key in ("persistence", "lacunarity", "feature_size", "amplitude", "cell", "margin", "obstacle_region", "keep_out"):

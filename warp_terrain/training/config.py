@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from ..sim.validation import check_finite, require
+
+RESUME_WORDS = ("false", "no", "0", "none", "", "true", "yes", "1")
 
 
 @dataclass
@@ -50,5 +53,10 @@ class TrainConfig:
             require(isinstance(value, int) and not isinstance(value, bool) and value >= 0, key, value, "must be an integer >= 0")
         require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "device", self.device, "must be auto, cpu, cuda or cuda:N")
         require(isinstance(self.dataset, str), "dataset", self.dataset, "must be a folder path or empty (the live stream)")
+        if self.dataset:
+            require(Path(self.dataset).expanduser().is_dir(), "dataset", self.dataset, "no such folder (write one with `warp-terrain generate`)")
+        resume = str(self.resume).strip()
+        if resume.lower() not in RESUME_WORDS:
+            require(Path(resume).expanduser().exists(), "resume", self.resume, "must be false, true, or an existing run folder or checkpoint file")
         check_finite("lr_decay_from", self.lr_decay_from)
         require(0.0 <= self.lr_decay_from <= 1.0, "lr_decay_from", self.lr_decay_from, "must be in [0, 1]")

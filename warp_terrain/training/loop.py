@@ -20,12 +20,15 @@ from omegaconf import OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 from tqdm.auto import tqdm
 
+from ..atomic import atomic_open, atomic_path
 from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import masked_rmse
 from ..models import build_model
 from ..models.fill import unobserved_weight_map
+from ..sim.batch import terrain_size
 from ..sim.device import resolve_device
-from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, resolve_resume, rng_state, set_rng_state
+from ..sim.memory import check_batch_fits
+from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, remove_stale_temporaries, resolve_resume, rng_state, set_rng_state
 from .distributed import NullWriter, close_ranks, init_ranks
 from .stream import VALIDATION_SEED_BASE, batch_seed, training_batches, validation_set
 
@@ -69,6 +72,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     for d in (ckpt_dir, image_dir):
         d.mkdir(parents=True, exist_ok=True)
     ranks, device = init_ranks(resolve_device(None if tc.device == "auto" else tc.device))
+    sim = cfg.sim()
+    check_batch_fits(tc.batch_size, terrain_size(sim), sim.lidar.num_rays, sim.data.map_size, device)
     rank = ranks.rank
     threads = tc.threads or (max(1, (os.cpu_count() or 1) - tc.workers) if device == "cpu" else 0)
     if threads:
@@ -80,6 +85,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     if ranks.distributed:
         model.distribute([ranks.local_rank] if device.startswith("cuda") else None)
     start, best = 0, math.inf
+    if ranks.main:  # a killed run's half-written checkpoint files
+        remove_stale_temporaries(ckpt_dir)
     resume_from = resolve_resume(tc.resume, run_dir)
     if resume_from is not None:
         state = load_checkpoint(resume_from)
@@ -87,9 +94,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
         start, best = int(state["step"]), float(state["best"])
         set_rng_state(state["rng"])
     if ranks.main:
-        OmegaConf.save(OmegaConf.structured(cfg), run_dir / "run_config.yaml")
+        _write_text(run_dir / "run_config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
 
-    sim = cfg.sim()
     val = validation_set(sim, tc.val_size if ranks.main else 1, device)
     unobserved = val["mask"] == 0
     nn_rmse = masked_rmse(nearest_fill(val["scan"], val["mask"]), val["target"], unobserved)
@@ -176,7 +182,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
         rmse, last_prediction = validate(tc.steps)
     if not ranks.main:
         summary = {"rank": rank, "steps": tc.steps, "first_batch_seeds": [batch_seed(tc.seed, rank, s) for s in range(start, min(start + 8, tc.steps))]}
-        (run_dir / f"summary_rank{rank}.json").write_text(json.dumps(summary))
+        _write_text(run_dir / f"summary_rank{rank}.json", json.dumps(summary))
         close_ranks(ranks)
         return summary
     log_paper_figures(writer, model, cfg, device, tc.steps)
@@ -200,7 +206,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     writer.close()
     summary["world_size"] = ranks.world
     summary["first_batch_seeds"] = [batch_seed(tc.seed, rank, s) for s in range(start, min(start + 8, tc.steps))]
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    _write_text(run_dir / "summary.json", json.dumps(summary, indent=2))
     close_ranks(ranks)
     return summary
 
@@ -217,9 +223,13 @@ def log_paper_figures(writer, model, cfg: RunConfig, device: str, step: int) -> 
     writer.add_figure("figures/fig6_input_prediction_truth", prediction_figure(predictor, channels, sim, seed=seed, device=device), step)
 
 
+def _write_text(path: Path, text: str) -> None:
+    with atomic_open(path, "w") as f:
+        f.write(text)
+
+
 def _save_png(grid: np.ndarray, path: Path) -> None:
     import matplotlib.image as mpimg
 
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    mpimg.imsave(tmp, grid.transpose(1, 2, 0))
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        mpimg.imsave(tmp, grid.transpose(1, 2, 0))

@@ -6,6 +6,19 @@ octave and ``amplitude`` (metres) bounds the heights (2-D Perlin noise lies in
 ``[-1/sqrt(2), 1/sqrt(2)]``, hence the ``sqrt(2)``). Each octave samples its own noise field at
 its own random offset, so octaves are uncorrelated and the sensor's position is not pinned to a
 lattice point (where Perlin noise is zero) of every octave.
+
+Two ways to evaluate the same field:
+
+- ``fractal_heightfield`` calls ``wp.noise`` per vertex and octave: one thread per vertex, the
+  layout a GPU wants (coalesced writes, hashing is cheap next to memory).
+- ``lattice_gradients`` + ``fractal_rows`` (the CPU path): a vertex grid is much finer than the
+  coarse octaves' lattices, so hashing four gradients per vertex and octave repeats the same
+  work many times. ``lattice_gradients`` reads each lattice point's gradient once, from Warp's
+  own noise: at a lattice point the fade has zero slope, so ``wp.curlnoise`` there is exactly
+  the rotated gradient ``wp.noise`` interpolates. ``fractal_rows`` then walks one row of
+  vertices per thread, reloading the four corner gradients only when the row crosses a lattice
+  line, and evaluates Perlin's interpolation with the same arithmetic as ``wp.noise``. Octaves
+  whose lattice is finer than ``table_octaves`` allows fall back to ``wp.noise`` in the row loop.
 """
 
 import warp as wp
@@ -25,25 +38,24 @@ def octave_fields(seed: int, fields: wp.array2d(dtype=wp.uint32), offsets: wp.ar
 
 
 @wp.func
-def fbm(
-    fields: wp.array2d(dtype=wp.uint32),
-    offsets: wp.array2d(dtype=wp.vec2),
-    b: int,
-    p: wp.vec2,
-    persistence: float,
-    lacunarity: float,
-) -> float:
-    """Normalised fBm in [-1, 1] at ``p`` (in units of the first octave's wavelength)."""
-    total = float(0.0)
-    weight = float(1.0)
-    weights = float(0.0)
+def vertex_coordinate(k: int, n: int, cell: float, feature_size: float) -> float:
+    """Vertex ``k`` of ``n`` along an axis, centred, in units of the first octave's wavelength."""
+    return (float(k) - 0.5 * float(n - 1)) * cell / feature_size
+
+
+@wp.func
+def octave_frequency(lacunarity: float, o: int) -> float:
+    """``lacunarity^o`` by repeated products, exactly as the octave loops accumulate it."""
     frequency = float(1.0)
-    for o in range(fields.shape[1]):
-        total += weight * wp.noise(fields[b, o], p * frequency + offsets[b, o])
-        weights += weight
-        weight *= persistence
+    for _k in range(o):
         frequency *= lacunarity
-    return total / (weights * PERLIN_2D_BOUND)
+    return frequency
+
+
+@wp.func
+def fade(t: float) -> float:
+    """Perlin's quintic fade (``smootherstep``, as inside ``wp.noise``)."""
+    return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 
 
 @wp.kernel
@@ -57,14 +69,130 @@ def fractal_heightfield(
     amplitude: wp.array(dtype=float),
     heights: wp.array3d(dtype=float),
 ):
-    """One launch fills every heightfield of the batch.
-
-    ``feature_size`` and ``amplitude`` are per sample so that one batch can mix reliefs.
-    """
+    """One thread per vertex, ``wp.noise`` per octave; ``feature_size``/``amplitude`` per sample."""
     b, i, j = wp.tid()
-    H = heights.shape[1]
-    W = heights.shape[2]
-    x = (float(i) - 0.5 * float(H - 1)) * cell
-    y = (float(j) - 0.5 * float(W - 1)) * cell
-    p = wp.vec2(x, y) / feature_size[b]
-    heights[b, i, j] = amplitude[b] * fbm(fields, offsets, b, p, persistence, lacunarity)
+    p = wp.vec2(
+        vertex_coordinate(i, heights.shape[1], cell, feature_size[b]),
+        vertex_coordinate(j, heights.shape[2], cell, feature_size[b]),
+    )
+    total = float(0.0)
+    weight = float(1.0)
+    weights = float(0.0)
+    frequency = float(1.0)
+    for o in range(fields.shape[1]):
+        total += weight * wp.noise(fields[b, o], p * frequency + offsets[b, o])
+        weights += weight
+        weight *= persistence
+        frequency *= lacunarity
+    heights[b, i, j] = amplitude[b] * total / (weights * PERLIN_2D_BOUND)
+
+
+@wp.kernel
+def lattice_gradients(
+    fields: wp.array2d(dtype=wp.uint32),
+    offsets: wp.array2d(dtype=wp.vec2),
+    cell: float,
+    lacunarity: float,
+    feature_size: wp.array(dtype=float),
+    rows: int,
+    columns: int,
+    origin: wp.array2d(dtype=wp.vec2i),
+    gradients: wp.array4d(dtype=wp.vec2),
+):
+    """Gradient of lattice point ``origin[b, o] + (u, v)`` of octave ``o``'s noise field.
+
+    ``origin`` is one lattice cell below the grid's first vertex, so rounding in the row
+    kernel can never step below the table.
+    """
+    b, o, u, v = wp.tid()
+    frequency = octave_frequency(lacunarity, o)
+    x0 = vertex_coordinate(0, rows, cell, feature_size[b]) * frequency + offsets[b, o][0]
+    y0 = vertex_coordinate(0, columns, cell, feature_size[b]) * frequency + offsets[b, o][1]
+    corner = wp.vec2i(int(wp.floor(x0)) - 1, int(wp.floor(y0)) - 1)
+    if u == 0 and v == 0:
+        origin[b, o] = corner
+    point = wp.vec2(float(corner[0] + u), float(corner[1] + v))
+    curl = wp.curlnoise(fields[b, o], point, wp.uint32(1), 2.0, 0.5)  # (-dn/dy, dn/dx)
+    gradients[b, o, u, v] = wp.vec2(curl[1], -curl[0])
+
+
+@wp.kernel
+def fractal_rows(
+    fields: wp.array2d(dtype=wp.uint32),
+    offsets: wp.array2d(dtype=wp.vec2),
+    gradients: wp.array4d(dtype=wp.vec2),
+    origin: wp.array2d(dtype=wp.vec2i),
+    table_octaves: int,
+    cell: float,
+    persistence: float,
+    lacunarity: float,
+    feature_size: wp.array(dtype=float),
+    amplitude: wp.array(dtype=float),
+    heights: wp.array3d(dtype=float),
+):
+    """Row ``i`` of heightfield ``b``: octaves below ``table_octaves`` from the gradient table."""
+    b, i = wp.tid()
+    rows = heights.shape[1]
+    columns = heights.shape[2]
+    last = gradients.shape[2] - 2
+    px = vertex_coordinate(i, rows, cell, feature_size[b])
+    for j in range(columns):
+        heights[b, i, j] = 0.0
+    weight = float(1.0)
+    weights = float(0.0)
+    frequency = float(1.0)
+    for o in range(fields.shape[1]):
+        offset = offsets[b, o]
+        if o < table_octaves:
+            qx = px * frequency + offset[0]
+            fx = wp.floor(qx)
+            dx = qx - fx
+            sx = fade(dx)
+            u = wp.clamp(int(fx) - origin[b, o][0], 0, last)
+            fy = float(0.0)
+            edge = float(-1.0e30)
+            # corner gradients of the current lattice cell, x terms folded in
+            a00 = float(0.0)
+            a10 = float(0.0)
+            a01 = float(0.0)
+            a11 = float(0.0)
+            c00 = float(0.0)
+            c10 = float(0.0)
+            c01 = float(0.0)
+            c11 = float(0.0)
+            for j in range(columns):
+                qy = vertex_coordinate(j, columns, cell, feature_size[b]) * frequency + offset[1]
+                if qy >= edge:  # crossed a lattice line (qy grows with j)
+                    fy = wp.floor(qy)
+                    edge = fy + 1.0
+                    v = wp.clamp(int(fy) - origin[b, o][1], 0, last)
+                    g00 = gradients[b, o, u, v]
+                    g10 = gradients[b, o, u + 1, v]
+                    g01 = gradients[b, o, u, v + 1]
+                    g11 = gradients[b, o, u + 1, v + 1]
+                    a00 = dx * g00[0]
+                    a10 = (dx - 1.0) * g10[0]
+                    a01 = dx * g01[0]
+                    a11 = (dx - 1.0) * g11[0]
+                    c00 = g00[1]
+                    c10 = g10[1]
+                    c01 = g01[1]
+                    c11 = g11[1]
+                dy = qy - fy
+                v00 = a00 + dy * c00
+                v10 = a10 + dy * c10
+                v01 = a01 + (dy - 1.0) * c01
+                v11 = a11 + (dy - 1.0) * c11
+                xi0 = (v10 - v00) * sx + v00
+                xi1 = (v11 - v01) * sx + v01
+                heights[b, i, j] += weight * ((xi1 - xi0) * fade(dy) + xi0)
+        else:
+            for j in range(columns):
+                p = wp.vec2(px, vertex_coordinate(j, columns, cell, feature_size[b]))
+                heights[b, i, j] += weight * wp.noise(fields[b, o], p * frequency + offset)
+        weights += weight
+        weight *= persistence
+        frequency *= lacunarity
+    scale = amplitude[b] / (weights * PERLIN_2D_BOUND)
+    for j in range(columns):
+        heights[b, i, j] *= scale

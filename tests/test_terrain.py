@@ -15,6 +15,40 @@ def test_shape_dtype_and_amplitude_bound():
     assert h.std() > 0.05  # not flat
 
 
+def _per_vertex_wp_noise(batch, size, cfg, seed, feature_size):
+    """The reference: one thread per vertex summing ``wp.noise`` octaves (the GPU path)."""
+    import warp as wp
+
+    from warp_terrain.kernels import noise as noise_kernels
+    from warp_terrain.sim.terrain import per_sample
+
+    fields = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device="cpu")
+    offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device="cpu")
+    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[seed], outputs=[fields, offsets], device="cpu")
+    heights = wp.empty((batch, size, size), dtype=float, device="cpu")
+    inputs = [fields, offsets, cfg.cell, cfg.persistence, cfg.lacunarity,
+              per_sample(feature_size, batch, "cpu", "feature_size"), per_sample(cfg.amplitude, batch, "cpu", "amplitude")]
+    wp.launch(noise_kernels.fractal_heightfield, dim=heights.shape, inputs=inputs, outputs=[heights], device="cpu")
+    return heights.numpy()
+
+
+@pytest.mark.parametrize(
+    "terrain, feature_size",
+    [
+        (dict(octaves=5, feature_size=16.0, amplitude=1.5, cell=0.25), 16.0),  # every octave from the table
+        (dict(octaves=8, cell=0.125), [3.0, 10.0, 40.0]),  # fine octaves fall back to wp.noise; per-sample features
+        (dict(octaves=3, cell=0.5, lacunarity=2.7, persistence=0.6), 40.0),
+        (dict(octaves=4, cell=0.25, lacunarity=0.5), 1.0),  # lacunarity < 1: the first octave is the finest
+    ],
+)
+def test_cpu_row_path_equals_wp_noise_per_vertex(terrain, feature_size):
+    cfg = TerrainConfig(**terrain)
+    batch = 3
+    fast = make_heightfields(batch, 97, cfg, 5, "cpu", feature_size=feature_size).numpy()
+    reference = _per_vertex_wp_noise(batch, 97, cfg, 5, feature_size)
+    np.testing.assert_allclose(fast, reference, rtol=0, atol=1e-6 * cfg.amplitude)
+
+
 def test_feature_size_is_in_metres():
     # the field depends on x / feature_size only: halving the cell and the wavelength together
     # samples the same points of the same field

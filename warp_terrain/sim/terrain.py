@@ -141,6 +141,44 @@ def per_sample(value, batch: int, device: str, name: str) -> wp.array:
     return wp.array(np.ascontiguousarray(arr), dtype=float, device=device)
 
 
+TABLE_MIN_SPACING = 2.0  # vertices per lattice cell below which an octave reads wp.noise directly
+
+
+def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features: wp.array, amplitudes: wp.array, heights: wp.array) -> None:
+    """The CPU path of the fBm (``kernels/noise.py``): lattice gradients read once, then one
+    thread per row of vertices. Octaves whose lattice cells span fewer than
+    ``TABLE_MIN_SPACING`` vertices (no reuse to gain) call ``wp.noise`` directly."""
+    batch, rows, columns = heights.shape
+    device = heights.device
+    feature_min = float(features.numpy().min())
+    frequencies = [cfg.lacunarity**o for o in range(cfg.octaves)]
+    table = 0
+    while table < cfg.octaves and feature_min / (frequencies[table] * cfg.cell) >= TABLE_MIN_SPACING:
+        table += 1
+    if table:
+        span = (max(rows, columns) - 1) * cfg.cell / feature_min * max(frequencies[:table])
+        n = math.ceil(span) + 4  # one cell below the grid, the far corner, and rounding
+        gradients = wp.empty((batch, table, n, n), dtype=wp.vec2, device=device)
+    else:
+        gradients = wp.zeros((batch, 1, 2, 2), dtype=wp.vec2, device=device)
+    origin = wp.zeros((batch, gradients.shape[1]), dtype=wp.vec2i, device=device)
+    if table:
+        wp.launch(
+            noise_kernels.lattice_gradients,
+            dim=gradients.shape,
+            inputs=[fields_, offsets, cfg.cell, cfg.lacunarity, features, rows, columns],
+            outputs=[origin, gradients],
+            device=device,
+        )
+    wp.launch(
+        noise_kernels.fractal_rows,
+        dim=(batch, rows),
+        inputs=[fields_, offsets, gradients, origin, table, cfg.cell, cfg.persistence, cfg.lacunarity, features, amplitudes],
+        outputs=[heights],
+        device=device,
+    )
+
+
 def make_heightfields(
     batch: int,
     size: int,
@@ -160,21 +198,18 @@ def make_heightfields(
     fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
     offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
     wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed], outputs=[fields_, offsets], device=device)
-    wp.launch(
-        noise_kernels.fractal_heightfield,
-        dim=(batch, size, size),
-        inputs=[
-            fields_,
-            offsets,
-            cell,
-            cfg.persistence,
-            cfg.lacunarity,
-            per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size"),
-            per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude"),
-        ],
-        outputs=[heights],
-        device=device,
-    )
+    features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size")
+    amplitudes = per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude")
+    if device == "cpu":
+        fbm_rows(fields_, offsets, cfg, features, amplitudes, heights)
+    else:
+        wp.launch(
+            noise_kernels.fractal_heightfield,
+            dim=heights.shape,
+            inputs=[fields_, offsets, cell, cfg.persistence, cfg.lacunarity, features, amplitudes],
+            outputs=[heights],
+            device=device,
+        )
     if cfg.has_obstacles():
         specs, slot_spec, slot_rank = _specs(cfg, device)
         region = obstacle_region if obstacle_region is not None else cfg.obstacle_region

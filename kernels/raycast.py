@@ -221,6 +221,50 @@ def trace_heightfield(
     return NO_HIT
 
 
+@wp.func
+def write_return(
+    points: wp.array2d(dtype=wp.vec3),
+    b: int,
+    r: int,
+    d: wp.vec3,
+    t: float,
+    min_range: float,
+    max_range: float,
+    range_noise_std: float,
+    dropout: float,
+    seed: int,
+    augment: int,
+):
+    """Ray ``r`` of scan ``b`` met the surface at distance ``t`` (or NO_HIT): write the return
+    the sensor reports (range noise, dropout, range gate; sample flip/rotation) or NaN."""
+    nan = wp.nan
+    out = wp.vec3(nan, nan, nan)
+    if t != NO_HIT:
+        state = stream_state(seed, b, STREAM_RAYS, r)
+        measured = t
+        if range_noise_std > 0.0:
+            measured = t + range_noise_std * wp.randn(state)
+        kept = wp.randf(state) >= dropout
+        if kept and measured >= min_range and measured <= max_range:
+            p = d * measured
+            xy = dihedral_apply(sample_transform(seed, b, augment), wp.vec2(p[0], p[1]))
+            out = wp.vec3(xy[0], xy[1], p[2])
+    points[b, r] = out
+
+
+@wp.func
+def reach_box(H: int, W: int, cell: float, reach: float) -> wp.vec4:
+    """Grid-coordinate bounds ``(lo_u, hi_u, lo_v, hi_v)`` a ray may travel in."""
+    u0 = 0.5 * float(H - 1)
+    v0 = 0.5 * float(W - 1)
+    box = wp.vec4(0.0, float(H - 1), 0.0, float(W - 1))
+    if reach > 0.0:
+        box = wp.vec4(
+            wp.max(box[0], u0 - reach / cell), wp.min(box[1], u0 + reach / cell), wp.max(box[2], v0 - reach / cell), wp.min(box[3], v0 + reach / cell)
+        )
+    return box
+
+
 @wp.kernel
 def cast_rays(
     heights: wp.array3d(dtype=float),
@@ -252,27 +296,145 @@ def cast_rays(
     v0 = 0.5 * float(W - 1)
     du = d[0] / cell
     dv = d[1] / cell
-    lo_u = 0.0
-    hi_u = float(H - 1)
-    lo_v = 0.0
-    hi_v = float(W - 1)
-    if reach > 0.0:
-        lo_u = wp.max(lo_u, u0 - reach / cell)
-        hi_u = wp.min(hi_u, u0 + reach / cell)
-        lo_v = wp.max(lo_v, v0 - reach / cell)
-        hi_v = wp.min(hi_v, v0 + reach / cell)
-    t_end = wp.min(max_range, wp.min(slab_exit(u0, du, lo_u, hi_u), slab_exit(v0, dv, lo_v, hi_v)))
+    box = reach_box(H, W, cell, reach)
+    t_end = wp.min(max_range, wp.min(slab_exit(u0, du, box[0], box[1]), slab_exit(v0, dv, box[2], box[3])))
     t = trace_heightfield(heights, tile_max, terrain_max[b], tile, b, u0, v0, sensor_z[b], du, dv, d[2], t_end)
-    nan = wp.nan
-    out = wp.vec3(nan, nan, nan)
-    if t != NO_HIT:
-        state = stream_state(seed, b, STREAM_RAYS, r)
-        measured = t
-        if range_noise_std > 0.0:
-            measured = t + range_noise_std * wp.randn(state)
-        kept = wp.randf(state) >= dropout
-        if kept and measured >= min_range and measured <= max_range:
-            p = d * measured
-            xy = dihedral_apply(sample_transform(seed, b, augment), wp.vec2(p[0], p[1]))
-            out = wp.vec3(xy[0], xy[1], p[2])
-    points[b, r] = out
+    write_return(points, b, r, d, t, min_range, max_range, range_noise_std, dropout, seed, augment)
+
+
+@wp.kernel
+def cast_columns(
+    heights: wp.array3d(dtype=float),
+    tile_max: wp.array3d(dtype=float),
+    terrain_max: wp.array(dtype=float),
+    sensor_z: wp.array(dtype=float),
+    tile: int,
+    cell: float,
+    directions: wp.array(dtype=wp.vec3),
+    rings: int,
+    min_range: float,
+    max_range: float,
+    range_noise_std: float,
+    dropout: float,
+    reach: float,
+    seed: int,
+    augment: int,
+    points: wp.array2d(dtype=wp.vec3),
+):
+    """One thread per (scan, azimuth column): all rings of a column in one walk.
+
+    The rays of a column lie in one vertical plane through the sensor, and in that plane a
+    lower ray meets the terrain no farther than a higher one (where the higher ray meets the
+    surface, the lower one is already below it). So a single DDA walk outward along the
+    column's azimuth serves every ring: the lowest ring not yet hit is tested cell by cell;
+    when it hits, the next ring is tested from the same cell on. A tile (or cell) the lowest
+    ring passes above is passed by every higher ring too. The walk is parameterised by
+    horizontal distance ``s``; ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
+    Needs every ray off the vertical (``cos(e) > 0``) and rays ordered ring-major, lowest ring
+    first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding.
+    """
+    b, c = wp.tid()
+    H = heights.shape[1]
+    W = heights.shape[2]
+    columns = directions.shape[0] // rings
+    d0 = directions[c]
+    h0 = wp.sqrt(d0[0] * d0[0] + d0[1] * d0[1])
+    du = d0[0] / (h0 * cell)  # grid cells per metre of horizontal travel
+    dv = d0[1] / (h0 * cell)
+    u0 = 0.5 * float(H - 1)
+    v0 = 0.5 * float(W - 1)
+    z0 = sensor_z[b]
+    top = terrain_max[b]
+    box = reach_box(H, W, cell, reach)
+    s_box = wp.min(slab_exit(u0, du, box[0], box[1]), slab_exit(v0, dv, box[2], box[3]))
+
+    step_i = int(0)
+    step_j = int(0)
+    inv_du = float(0.0)
+    inv_dv = float(0.0)
+    if du > 0.0:
+        step_i = 1
+    elif du < 0.0:
+        step_i = -1
+    if dv > 0.0:
+        step_j = 1
+    elif dv < 0.0:
+        step_j = -1
+    if step_i != 0:
+        inv_du = 1.0 / du
+    if step_j != 0:
+        inv_dv = 1.0 / dv
+
+    s = float(0.0)
+    i = cell_index(u0, step_i)
+    j = cell_index(v0, step_j)
+    open_ti = int(-1)
+    open_tj = int(-1)
+    k = int(0)
+    r = c
+    d = d0
+    h = h0
+    slope = d0[2] / h0
+    s_end = wp.min(s_box, max_range * h0)
+    while k < rings:
+        z = z0 + slope * s
+        t_hit = NO_HIT
+        ring_done = bool(False)
+        if s >= s_end or (slope >= 0.0 and z > top) or i < 0 or i > H - 2 or j < 0 or j > W - 2:
+            ring_done = True  # this ring has left its range, risen above everything, or left the grid
+        else:
+            ti = i // tile
+            tj = j // tile
+            skipped = bool(False)
+            if ti != open_ti or tj != open_tj:
+                t_tu = next_boundary(u0, inv_du, ti * tile + wp.max(step_i, 0) * (tile - 1), step_i)
+                t_tv = next_boundary(v0, inv_dv, tj * tile + wp.max(step_j, 0) * (tile - 1), step_j)
+                s_tile = wp.min(wp.min(t_tu, t_tv), s_end)
+                if wp.min(z, z0 + slope * s_tile) > tile_max[b, ti, tj]:
+                    skipped = True
+                    if s_tile >= s_end:
+                        ring_done = True
+                    else:
+                        s = wp.max(s, s_tile)
+                        if t_tu <= t_tv:
+                            i = ti * tile + wp.max(step_i, 0) * tile - wp.max(-step_i, 0)
+                            j = forward(j, cell_index(v0 + dv * s, step_j), step_j)
+                        else:
+                            j = tj * tile + wp.max(step_j, 0) * tile - wp.max(-step_j, 0)
+                            i = forward(i, cell_index(u0 + du * s, step_i), step_i)
+                else:
+                    open_ti = ti
+                    open_tj = tj
+            if not skipped:
+                t_u = next_boundary(u0, inv_du, i, step_i)
+                t_v = next_boundary(v0, inv_dv, j, step_j)
+                s_cell = wp.max(wp.min(wp.min(t_u, t_v), s_end), s)
+                h00 = heights[b, i, j]
+                h10 = heights[b, i + 1, j]
+                h01 = heights[b, i, j + 1]
+                h11 = heights[b, i + 1, j + 1]
+                if wp.min(z, z0 + slope * s_cell) <= wp.max(wp.max(h00, h10), wp.max(h01, h11)):
+                    hit = cell_hit(h00, h10, h01, h11, u0 - float(i), v0 - float(j), z0, du, dv, slope, s, s_cell)
+                    if hit != NO_HIT:
+                        t_hit = hit / h
+                        ring_done = True
+                if not ring_done:
+                    if s_cell >= s_end:
+                        ring_done = True  # the ring's range ends inside this cell
+                    else:
+                        if t_u <= t_v:
+                            i += step_i
+                        else:
+                            j += step_j
+                        s = s_cell
+        if ring_done:
+            write_return(points, b, r, d, t_hit, min_range, max_range, range_noise_std, dropout, seed, augment)
+            k += 1
+            if k < rings:
+                r = k * columns + c
+                d = directions[r]
+                h = wp.sqrt(d[0] * d[0] + d[1] * d[1])
+                slope = d[2] / h
+                s_end = wp.min(s_box, max_range * h)
+                open_ti = -1  # the new ring re-checks the tile it is in
+                open_tj = -1

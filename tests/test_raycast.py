@@ -198,3 +198,40 @@ def test_traversal_matches_the_triangle_mesh_to_a_millimetre():
 def test_bad_input_names_the_parameter(call, name):
     with pytest.raises(ValueError, match=name):
         call()
+
+
+@pytest.mark.parametrize("preset", ["vlp16", "hdl64e", "os1-128"])
+def test_column_walk_equals_one_walk_per_ray(preset, monkeypatch):
+    """``cast_columns`` (one walk per azimuth column for all rings) returns what ``cast_rays``
+    (one walk per ray) returns: same returns, same noise and dropout draws, same flips, to 0.1 mm."""
+    from warp_terrain.sim import scan
+
+    cfg = TerrainConfig(octaves=5, amplitude=2.0, feature_size=8.0, cell=0.1, keep_out=1.5)
+    cfg.cylinders = ObstacleConfig(count_min=2, count_max=4)
+    cfg.boxes = ObstacleConfig(count_min=1, count_max=3)
+    cfg.pits = ObstacleConfig(count_min=1, count_max=3)
+    cfg.ditches = ObstacleConfig(count_min=1, count_max=2)
+    heights = make_heightfields(3, 201, cfg, seed=11, device="cpu", obstacle_region=8.0)
+    lidar = wt.lidar_preset(preset, azimuth_step_deg=1.5, dropout=0.1, range_noise_std=0.02)
+    results = {}
+    for by_column in (False, True):
+        monkeypatch.setattr(scan, "columns_walkable", lambda _lidar, flag=by_column: flag)
+        for reach in (0.0, 6.0):
+            points, _ = scan.trace(heights, cfg.cell, lidar, seed=5, device="cpu", augment=True, reach=reach)
+            results[by_column, reach] = points.numpy()
+    for reach in (0.0, 6.0):
+        per_ray, by_column = results[False, reach], results[True, reach]
+        assert np.array_equal(np.isnan(per_ray), np.isnan(by_column))
+        assert np.isfinite(per_ray[..., 0]).sum() > 500  # plenty of returns to compare
+        np.testing.assert_allclose(by_column, per_ray, atol=1e-4, equal_nan=True)
+
+
+def test_a_vertical_ring_is_cast_one_ray_at_a_time():
+    from warp_terrain.sim.scan import columns_walkable
+
+    lidar = wt.LidarConfig(elevations_deg=[-90.0, -30.0], azimuth_step_deg=10.0, range_noise_std=0.0, mount_height=MOUNT)
+    assert not columns_walkable(lidar) and columns_walkable(quiet("hdl32e"))
+    pts = wt.cast_scans(np.zeros((81, 81)), 0.1, lidar)[0].numpy()
+    ranges = np.linalg.norm(pts, axis=-1).reshape(2, -1)
+    np.testing.assert_allclose(ranges[0], MOUNT, atol=1e-4)  # straight down
+    np.testing.assert_allclose(ranges[1], MOUNT / math.sin(math.radians(30.0)), atol=1e-4)

@@ -15,6 +15,7 @@ from .lidar import LidarConfig
 from .validation import check_finite, require
 
 TILE = 8  # cells per side of the max-height tiles that let rays skip empty space
+VERTICAL_DEG = 89.9  # rings steeper than this are cast one ray at a time (no horizontal walk)
 
 
 @lru_cache(maxsize=32)
@@ -28,6 +29,12 @@ def ray_directions(lidar: LidarConfig, device: str) -> wp.array:
     """The sensor's unit ray directions as a Warp array, cached per sensor pattern and device."""
     key = (tuple(float(e) for e in lidar.elevations_deg), float(lidar.azimuth_step_deg), float(lidar.azimuth_start_deg), float(lidar.fov_deg))
     return _directions(key, device)
+
+
+def columns_walkable(lidar: LidarConfig) -> bool:
+    """Whether one walk per azimuth column can serve every ring (``kernels/raycast.py``
+    ``cast_columns``): true unless a ring points straight up or down."""
+    return bool(np.all(np.abs(np.asarray(lidar.elevations_deg, dtype=np.float64)) < VERTICAL_DEG))
 
 
 def trace(
@@ -55,9 +62,11 @@ def trace(
     points = wp.empty((batch, directions.shape[0]), dtype=wp.vec3, device=device)
     wp.launch(heightfield_kernels.tile_max_heights, dim=tiles, inputs=[heights, TILE], outputs=[tile_max, terrain_max], device=device)
     wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
+    rings = lidar.channels
+    by_column = columns_walkable(lidar)
     wp.launch(
-        raycast_kernels.cast_rays,
-        dim=points.shape,
+        raycast_kernels.cast_columns if by_column else raycast_kernels.cast_rays,
+        dim=(batch, directions.shape[0] // rings) if by_column else points.shape,
         inputs=[
             heights,
             tile_max,
@@ -66,6 +75,7 @@ def trace(
             TILE,
             float(cell),
             directions,
+            *([rings] if by_column else []),
             float(lidar.min_range),
             float(lidar.max_range),
             float(lidar.range_noise_std),

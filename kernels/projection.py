@@ -14,7 +14,7 @@ from .rng import STREAM_IMAGE_NOISE, stream_state
 def bin_points(
     points: wp.array2d(dtype=wp.vec3),
     map_cell: float,
-    height_sum: wp.array3d(dtype=float),
+    height_sum: wp.array3d(dtype=wp.float64),
     count: wp.array3d(dtype=int),
     height_max: wp.array3d(dtype=float),
 ):
@@ -31,14 +31,14 @@ def bin_points(
         return
     i = int(fi)
     j = int(fj)
-    wp.atomic_add(height_sum, b, i, j, p[2])
+    wp.atomic_add(height_sum, b, i, j, wp.float64(p[2]))  # float64: no overflow, no drift
     wp.atomic_add(count, b, i, j, 1)
     wp.atomic_max(height_max, b, i, j, p[2])
 
 
 @wp.kernel
 def finish_maps(
-    height_sum: wp.array3d(dtype=float),
+    height_sum: wp.array3d(dtype=wp.float64),
     count: wp.array3d(dtype=int),
     height_max: wp.array3d(dtype=float),
     fill: float,
@@ -50,7 +50,7 @@ def finish_maps(
     b, i, j = wp.tid()
     n = count[b, i, j]
     if n > 0:
-        height[b, 0, i, j] = height_sum[b, i, j] / float(n)
+        height[b, 0, i, j] = float(height_sum[b, i, j] / wp.float64(n))
         top[b, 0, i, j] = height_max[b, i, j]
         mask[b, 0, i, j] = 1.0
     else:

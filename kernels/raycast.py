@@ -9,6 +9,11 @@ first surface met is found, obstacle sides and the far walls of pits included. T
 ``tile x tile`` cells with their max height let a ray skip every tile it passes above without
 touching its cells; a ray heading up above the highest point of its terrain stops at once.
 
+A spinning LIDAR's rays come in azimuth columns, and the rays of a column share one vertical
+plane, so ``cast_columns`` walks each column once for all its rings (lowest first: in that
+plane a lower ray never meets the terrain beyond a higher one). ``cast_rays`` walks each ray on
+its own; it serves rings that point straight up or down and checks the column walk in tests.
+
 Ray ``r`` of sample ``b`` starts at the sensor, above the heightfield's centre, and leaves
 with unit direction ``directions[r]`` (sensor frame = world axes). The hit is written in the
 sensor frame; rays with no return (no surface within range, outside ``[min_range, max_range]``

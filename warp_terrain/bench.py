@@ -1,30 +1,50 @@
-"""Reproducible simulator benchmarks: fixed, seeded workloads timed on one device.
+"""Reproducible benchmarks: fixed, seeded workloads timed on one device, with anchors.
 
-Three workloads, each a function returning a plain (JSON-ready) dict:
+Six workloads, each a function returning a plain (JSON-ready) dict:
 
-- :func:`bench_noise`: fBm heightfields (64 of 121x121, 5 octaves) -> ``samples_per_s`` (fBm values)
-- :func:`bench_rays`: an HDL-64E-like scan (64 x 2048 = 131,072 rays) from 1.8 m over a
+- :func:`bench_noise` (NOISE): fBm heightfields (64 of 121x121, 5 octaves) -> ``samples_per_s``
+  (fBm values). Anchor: pyfastnoiselite (FastNoiseLite Perlin fBm, same octaves, lacunarity,
+  gain and first wavelength, one thread) on the same number of samples.
+- :func:`bench_rays` (RAYS): an HDL-64E-like scan (64 x 2048 = 131,072 rays) from 1.8 m over a
   512x512, 0.1 m fBm heightfield -> ``rays_per_s`` and the hit fraction. The heightfield exists
   before the clock starts; the per-call max-height tile build inside ``trace`` is timed, as it is
-  part of every cast on a fresh terrain.
-- :func:`bench_stream`: ``generate_batch(B, SimConfig())`` (HDL-32E, 121x121 maps) ->
+  part of every cast on a fresh terrain. Anchor: Open3D's ``RaycastingScene`` (Embree) on the
+  triangle mesh of the same heightfield (same diagonal), cast-only and fresh (BVH build + cast),
+  with all threads and one; the hit distances of the two must agree to 1 mm.
+- :func:`bench_stream` (STREAM): ``generate_batch(B, SimConfig())`` (HDL-32E, 121x121 maps) ->
   ``pairs_per_s``, with a breakdown into terrain, ray cast and projection + ground truth, each
   stage timed on its own.
+- :func:`bench_loader`: the training stream in-process and with generator worker processes.
+- :func:`bench_train` (TRAIN): the paper's model (Table 2, ngf 64) -> ``images_per_s`` of
+  optimiser steps on a fixed batch (no data time), the same steps pulling batches from the
+  training stream (``data_wait_share``), and the channels_last and ``torch.compile`` variants.
+- :func:`bench_infer` (INFER): points -> map latency of the shipped ``Reconstructor``, and its
+  network under torch and ONNX Runtime (with their max abs difference).
 
 Every timing follows one warm-up call with the same shapes (kernel compilation and module
 loading excluded), synchronises the device before reading ``time.perf_counter`` and reports the
-median of a few repeats. :func:`run_benchmarks` runs a selection and adds the environment
-(device, Warp/torch versions); :func:`format_table` renders its result for people.
+median of a few repeats. An anchor that is not installed is reported as such (``available:
+false`` and the reason), never as an error. :func:`run_benchmarks` runs a selection and adds the
+environment (device, Warp/torch versions); :func:`format_table` renders its result for people.
 """
 
 from __future__ import annotations
 
+import copy
+import json
 import math
 import os
 import platform
+import queue
+import signal
 import statistics
+import subprocess
+import sys
+import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterable
+from importlib import metadata
 
 import numpy as np
 import torch
@@ -40,29 +60,57 @@ SEED = 12345
 
 __all__ = [
     "BENCHMARKS",
+    "bench_infer",
+    "bench_loader",
     "bench_noise",
     "bench_rays",
     "bench_stream",
+    "bench_train",
+    "compare_hits",
     "environment",
     "format_table",
+    "heightfield_triangles",
+    "open3d_hits",
     "parse_only",
     "run_benchmarks",
 ]
 
+AGREEMENT_TOLERANCE_M = 1e-3  # RAYS: our hit distances and Open3D's must agree to 1 mm
+COMPILE_LIMIT_S = 120.0  # TRAIN: torch.compile gets this long for its first steps, else it is recorded as too slow
+
 
 # ------------------------------------------------------------------------------- helpers
+def _sync(device: str) -> None:
+    """Wait for Warp's and torch's work on ``device``."""
+    wp.synchronize_device(device)
+    if device.startswith("cuda"):
+        torch.cuda.synchronize(device)
+
+
 def _time(fn: Callable[[], object], device: str, repeats: int) -> list[float]:
     """Seconds per call of ``fn`` over ``repeats`` calls, after one untimed warm-up call."""
     fn()
-    wp.synchronize_device(device)
+    _sync(device)
     times = []
     for _ in range(repeats):
-        wp.synchronize_device(device)
+        _sync(device)
         t0 = time.perf_counter()
         fn()
-        wp.synchronize_device(device)
+        _sync(device)
         times.append(time.perf_counter() - t0)
     return times
+
+
+def _unavailable(module: str, err: BaseException) -> dict:
+    """An anchor that cannot run here: reported, not raised."""
+    return {"available": False, "reason": f"{module} not importable ({type(err).__name__}: {' '.join(str(err).split())})"}
+
+
+def _version(dist: str) -> str:
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def _timing(times: list[float]) -> dict:

@@ -42,7 +42,7 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
         elif suffix == ".pcd":
             pypcd4 = _need("pypcd4")
             cloud = pypcd4.PointCloud.from_path(str(path))
-            xyz = np.stack([cloud.pc_data[k] for k in ("x", "y", "z")], axis=-1)
+            xyz = np.stack([cloud.pc_data[k].reshape(-1) for k in ("x", "y", "z")], axis=-1)  # a 1-point ASCII file is 0-d
         else:
             laspy = _need("laspy")
             las = laspy.read(str(path))
@@ -58,7 +58,7 @@ def check_points(points, name: str = "points") -> np.ndarray:
     """Validate an (N, 3) cloud: wrong shape/dtype or nothing usable -> ValueError; rows with
     NaN/inf are dropped with a warning."""
     arr = np.asarray(points)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+    if arr.dtype.kind not in "iuf":  # ints and floats; not bool, complex, timedelta, objects
         raise ValueError(f"{name}: expected numeric x, y, z, got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name}: expected an (N, 3) array of x, y, z, got shape {arr.shape}")

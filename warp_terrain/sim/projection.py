@@ -15,7 +15,7 @@ def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str,
     """``(height, top, mask)`` Warp arrays ``(batch, 1, S, S)`` from ``(batch, rays)`` vec3 points."""
     batch = points.shape[0]
     grid = (batch, map_size, map_size)
-    height_sum = wp.zeros(grid, dtype=float, device=device)
+    height_sum = wp.zeros(grid, dtype=wp.float64, device=device)
     count = wp.zeros(grid, dtype=int, device=device)
     height_max = wp.full(grid, -1.0e30, dtype=float, device=device)
     wp.launch(projection_kernels.bin_points, dim=points.shape, inputs=[points, float(map_cell)], outputs=[height_sum, count, height_max], device=device)
@@ -31,16 +31,35 @@ def check_map(map_size, map_cell) -> None:
     require(map_cell > 0, "map_cell", map_cell, "must be > 0")
 
 
+def _real_points(points):
+    """``points`` as a torch tensor or numpy array of real numbers (ints or floats); anything
+    else (bool, complex, strings, objects, ragged lists) -> ValueError naming ``points``."""
+    if isinstance(points, torch.Tensor):
+        ok, dtype = not (points.is_complex() or points.dtype == torch.bool), points.dtype
+    else:
+        try:
+            points = np.asarray(points)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"points: not an array of numbers ({err})") from None
+        dtype = points.dtype
+        ok = dtype.kind in "iuf"  # ints and floats; not bool, complex, timedelta, objects
+    require(ok, "points", f"dtype {dtype}", "must be real numbers (float or int)")
+    return points
+
+
 def project_points(points, map_size: int = 121, map_cell: float = 0.25, device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """Bin sensor-frame points into ``(height, mask)`` elevation maps, each ``(batch, 1, S, S)``.
 
     ``points``: ``(rays, 3)`` or ``(batch, rays, 3)``, torch or numpy. Point (x, y, z) lands in
     cell ``(round(x / map_cell + (S-1)/2), round(y / map_cell + (S-1)/2))``; a cell's height is
     the mean z of its points (0 where none landed) and its mask 1 where at least one did. Rows
-    with NaN/inf and points outside the map are ignored. ``device=None`` keeps a tensor's device.
+    with NaN/inf and points outside the map are ignored (float64 values beyond float32's range
+    count as inf); bool, complex or non-numeric points raise ValueError. ``device=None`` keeps a
+    tensor's device.
     """
     check_map(map_size, map_cell)
-    shape = tuple(points.shape) if hasattr(points, "shape") else np.shape(points)
+    points = _real_points(points)
+    shape = tuple(points.shape)
     require(len(shape) in (2, 3) and shape[-1] == 3, "points", f"shape {shape}", "must be (rays, 3) or (batch, rays, 3)")
     if len(shape) == 2:
         points = points[None]
@@ -55,6 +74,7 @@ def project_points(points, map_size: int = 121, map_cell: float = 0.25, device=N
         return zeros, zeros.clone()
     if isinstance(points, torch.Tensor) and not points.is_floating_point():
         points = points.float()
-    wp_points = to_warp(points, wp.vec3, device)
+    with np.errstate(over="ignore"):  # float64 beyond float32's range -> inf: skipped like NaN
+        wp_points = to_warp(points, wp.vec3, device)
     height, _top, mask = bin_into_maps(wp_points, int(map_size), float(map_cell), device)
     return wp.to_torch(height), wp.to_torch(mask)

@@ -29,6 +29,17 @@ def atomic_save(obj, path: str | os.PathLike) -> None:
         torch.save(obj, f)
 
 
+def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
+    """Delete the temporary files of checkpoint writes that never finished (a SIGKILL, an OOM
+    kill or a power cut mid-write leaves ``.latest.pt.XXXX.pt`` behind, as large as a
+    checkpoint, one per crash). Call it when no other process writes to ``folder``."""
+    folder = Path(folder)
+    stale = [p for p in folder.glob(".*") if p.is_file() and p.name.startswith((f".{LATEST}.", f".{BEST}."))]
+    for p in stale:
+        p.unlink(missing_ok=True)
+    return stale
+
+
 def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     path = Path(path)
     if not path.is_file():

@@ -151,6 +151,21 @@ def test_training_logs_checkpoints_and_resumes_exactly(tmp_path):
     assert [e.step for e in _events(tmp_path / "run").Scalars("loss/l1")][-2:] == [5, 6]
 
 
+def test_same_seed_and_config_train_bit_identically_on_cpu(tmp_path, monkeypatch):
+    """Two fresh runs with one seed: the same batches, so bit-identical losses and weights;
+    another seed draws other batches and ends elsewhere."""
+    monkeypatch.setattr("warp_terrain.training.loop.log_paper_figures", lambda *a, **k: None)
+    steps = ["train.steps=3", "train.val_every=3", "train.image_every=3", "train.checkpoint_every=3", "train.threads=1"]
+    runs = {name: train(run_config(*TINY, *steps, f"train.seed={seed}"), tmp_path / name)
+            for name, seed in (("a", 7), ("b", 7), ("c", 8))}
+    weights = {name: load_checkpoint(run["checkpoint"])["model"]["netG"] for name, run in runs.items()}
+    losses = {name: [e.value for e in _events(tmp_path / name).Scalars("loss/l1")] for name in runs}
+    assert losses["a"] == losses["b"] and len(losses["a"]) == 3
+    assert all(torch.equal(t, weights["b"][k]) for k, t in weights["a"].items())
+    assert losses["a"] != losses["c"]
+    assert not all(torch.equal(t, weights["c"][k]) for k, t in weights["a"].items())
+
+
 def test_resume_from_a_missing_checkpoint_fails_clearly(tmp_path):
     with pytest.raises(ValueError, match="no checkpoint"):
         train(run_config(*TINY, "train.steps=2", "train.resume=true"), tmp_path / "empty")

@@ -80,6 +80,14 @@ def test_same_command_writes_the_same_bytes(dataset, tmp_path):
     assert [s["sha256"] for s in again["shards"]] == [s["sha256"] for s in manifest["shards"]]
 
 
+def test_worker_processes_write_the_same_bytes(dataset, tmp_path):
+    _, manifest = dataset
+    parallel = write_dataset(tmp_path / "parallel", 5, tiny_sim(), seed=7, shard_size=2, device="cpu", workers=2)
+    assert [s["sha256"] for s in parallel["shards"]] == [s["sha256"] for s in manifest["shards"]]
+    with pytest.raises(ValueError, match="workers"):
+        write_dataset(tmp_path / "bad", 5, tiny_sim(), workers=-1)
+
+
 def _copy(src: Path, dst: Path) -> Path:
     dst.mkdir()
     for p in src.iterdir():

@@ -113,23 +113,45 @@ def _prepare_folder(out: Path, overwrite: bool) -> None:
         raise DatasetError(f"out={str(out)!r}: cannot create the folder ({err.strerror or err})") from None
 
 
+def _shard(sim, n: int, s_seed: int, with_points: bool, device: str) -> tuple[bytes, dict]:
+    """One shard's ``.npz`` bytes and array shapes (top level: worker processes call it)."""
+    from ..sim import generate_batch
+
+    b = generate_batch(n, sim, seed=s_seed, device=device)
+    arrays = {name: getattr(b, name).detach().to("cpu", torch.float32).numpy() for name in MAPS}
+    if with_points:
+        arrays["points"] = b.points.detach().to("cpu", torch.float32).numpy()
+    return _npz_bytes(arrays), {key: list(a.shape) for key, a in arrays.items()}
+
+
+def _write_shard(out: Path, name: str, data: bytes) -> None:
+    try:
+        _atomic_write(out / name, data)
+    except OSError as err:
+        raise DatasetError(f"out={str(out)!r}: cannot write {name} ({err.strerror or err})") from None
+
+
 def write_dataset(out, count: int, sim=None, seed: int = 0, shard_size: int = 64, overwrite: bool = False,
-                  with_points: bool = False, device=None, progress=None) -> dict:
+                  with_points: bool = False, device=None, progress=None, workers: int = 0) -> dict:
     """Generate ``count`` pairs from ``sim`` (a ``SimConfig`` or anything ``as_sim_config`` takes)
     into the folder ``out`` as shards of ``shard_size``; returns the manifest (also written as
     ``out/manifest.json``).
 
     ``out`` is created if missing; a non-empty folder is refused unless ``overwrite`` (then its
     ``manifest.json`` and ``shard-*.npz`` are removed first; other files are left alone).
-    ``progress``: optional ``callable(str)`` told about each shard.
+    ``progress``: optional ``callable(str)`` told about each shard. ``workers`` > 0 makes the
+    shards in that many processes (CPU only: a Warp CPU launch runs on one thread); the files
+    are the same byte for byte.
     """
     import warp as wp
 
     from .. import __version__
-    from ..sim import as_sim_config, generate_batch, resolve_device
+    from ..sim import as_sim_config, resolve_device
 
     count = _positive_int("count", count)
     shard_size = _positive_int("shard_size", shard_size)
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
+        raise ValueError(f"workers={workers!r}: must be an integer >= 0")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed={seed!r}: must be an integer >= 0")
     seed = int(seed)
@@ -143,32 +165,37 @@ def write_dataset(out, count: int, sim=None, seed: int = 0, shard_size: int = 64
                 old.unlink()
 
     S = sim.data.map_size
+    plan = [(k, first, min(shard_size, count - first), shard_seed(seed, k)) for k, first in enumerate(range(0, count, shard_size))]
+    jobs = [(sim, n, s_seed, with_points, device) for _k, _first, n, s_seed in plan]
+    pool = None
+    if workers and device == "cpu" and len(plan) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(max_workers=int(workers), mp_context=multiprocessing.get_context("spawn"))
+        made = pool.map(_shard, *zip(*jobs))  # in shard order
+    else:
+        made = (_shard(*job) for job in jobs)
     shards = []
-    for k, first in enumerate(range(0, count, shard_size)):
-        n = min(shard_size, count - first)
-        s_seed = shard_seed(seed, k)
-        b = generate_batch(n, sim, seed=s_seed, device=device)
-        arrays = {name: getattr(b, name).detach().to("cpu", torch.float32).numpy() for name in MAPS}
-        if with_points:
-            arrays["points"] = b.points.detach().to("cpu", torch.float32).numpy()
-        data = _npz_bytes(arrays)
-        name = shard_name(k)
-        try:
-            _atomic_write(out / name, data)
-        except OSError as err:
-            raise DatasetError(f"out={str(out)!r}: cannot write {name} ({err.strerror or err})") from None
-        shards.append({
-            "file": name,
-            "index": k,
-            "first": first,
-            "count": n,
-            "seed": s_seed,
-            "bytes": len(data),
-            "sha256": hashlib.sha256(data).hexdigest(),
-            "shapes": {key: list(a.shape) for key, a in arrays.items()},
-        })
-        if progress is not None:
-            progress(f"{name}: {n} pairs (samples {first}..{first + n - 1}, seed {s_seed})")
+    try:
+        for (k, first, n, s_seed), (data, shapes) in zip(plan, made):
+            name = shard_name(k)
+            _write_shard(out, name, data)
+            shards.append({
+                "file": name,
+                "index": k,
+                "first": first,
+                "count": n,
+                "seed": s_seed,
+                "bytes": len(data),
+                "sha256": hashlib.sha256(data).hexdigest(),
+                "shapes": shapes,
+            })
+            if progress is not None:
+                progress(f"{name}: {n} pairs (samples {first}..{first + n - 1}, seed {s_seed})")
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
 
     arrays_info = {name: {"dtype": "float32", "sample_shape": [1, S, S]} for name in MAPS}
     if with_points:

@@ -51,13 +51,22 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.2f} GiB" if n >= 2**30 else f"{n / 2**20:.1f} MiB"
 
 
+_FITTED: set[tuple] = set()  # shapes already found to fit: the stream asks every step
+
+
 def check_batch_fits(batch: int, terrain_size: int, rays: int, map_size: int, device: str) -> int:
-    """Raise ValueError with the estimate if the batch would not fit ``device``; return the estimate."""
+    """Raise ValueError with the estimate if the batch would not fit ``device``; return the estimate.
+
+    A shape that fitted once is not asked again (no query per training step)."""
     need = batch_bytes(batch, terrain_size, rays, map_size)
+    key = (batch, terrain_size, rays, map_size, str(device))
+    if key in _FITTED:
+        return need
     free = available_bytes(device)
     if free is not None and need > HEADROOM * free:
         raise ValueError(
             f"batch={batch}: needs about {_gib(need)} on {device} ({_gib(need / batch)} per pair: terrain "
             f"{terrain_size}^2, {rays:,} rays, map {map_size}^2) but {_gib(free)} is free; lower the batch size"
         )
+    _FITTED.add(key)
     return need

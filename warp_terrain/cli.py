@@ -18,7 +18,7 @@ from .atomic import atomic_open
 
 EXIT_USAGE = 2
 
-BENCH_NAMES = ("noise", "rays", "stream", "loader")
+BENCH_NAMES = ("noise", "rays", "stream", "loader", "train", "infer")
 
 
 # ------------------------------------------------------------------------------ argument types
@@ -43,8 +43,11 @@ def _add_device(p: argparse.ArgumentParser) -> None:
 
 # ------------------------------------------------------------------------------ bench
 def add_bench(sub) -> None:
-    p = sub.add_parser("bench", help="benchmark the simulator (terrain noise, ray casting, the data stream)",
-                       description="Time fixed, seeded simulator workloads after a warm-up (compilation excluded).")
+    p = sub.add_parser("bench", help="benchmark the simulator, training and inference (with anchors where installed)",
+                       description="Time fixed, seeded workloads after a warm-up (compilation excluded): terrain noise, "
+                                   "ray casting, the data stream and loader, training steps of the paper's model, and "
+                                   "points -> map inference; with pyfastnoiselite and Open3D as anchors where installed "
+                                   "(pip install -e .[bench]).")
     p.add_argument("--json", action="store_true", help="print the results as JSON on stdout (progress goes to stderr)")
     _add_device(p)
     p.add_argument("--only", type=_only, default=None, metavar="NAMES",
@@ -191,6 +194,8 @@ def add_generate(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="dataset seed (default: 0)")
     p.add_argument("--shard-size", type=int, default=64, metavar="K", help="pairs per shard (default: 64)")
     p.add_argument("--with-points", action="store_true", help="also store the LIDAR points (large)")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="make shards in N processes on a CPU (a Warp CPU launch uses one core); same files (default: 0, in-process)")
     p.add_argument("--overwrite", action="store_true", help="replace the dataset in a non-empty folder")
     p.add_argument("--json", action="store_true", help="print the manifest as JSON on stdout")
     _add_device(p)
@@ -241,7 +246,7 @@ def cmd_generate(args) -> int:
         print(line, file=sys.stderr, flush=True)
 
     manifest = write_dataset(args.out, args.count, sim, seed=args.seed, shard_size=args.shard_size, overwrite=args.overwrite,
-                             with_points=args.with_points, device=args.device, progress=progress)
+                             with_points=args.with_points, device=args.device, progress=progress, workers=args.workers)
     if args.json:
         json.dump(manifest, sys.stdout, indent=2)
         sys.stdout.write("\n")

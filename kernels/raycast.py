@@ -317,6 +317,8 @@ def cast_columns(
     cell: float,
     directions: wp.array(dtype=wp.vec3),
     rings: int,
+    first_column: int,
+    column_step: int,
     min_range: float,
     max_range: float,
     range_noise_std: float,
@@ -336,9 +338,11 @@ def cast_columns(
     ring passes above is passed by every higher ring too. The walk is parameterised by
     horizontal distance ``s``; ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
     Needs every ray off the vertical (``cos(e) > 0``) and rays ordered ring-major, lowest ring
-    first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding.
+    first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding. Thread
+    ``c`` walks column ``first_column + c * column_step``, so processes can share a scan's columns.
     """
     b, c = wp.tid()
+    c = first_column + c * column_step
     H = heights.shape[1]
     W = heights.shape[2]
     columns = directions.shape[0] // rings

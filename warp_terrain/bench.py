@@ -276,11 +276,30 @@ def bench_rays(device=None, quick: bool = False, repeats: int | None = None, anc
               "size": size, "cell_m": cell, "extent_m": (size - 1) * cell, "octaves": terrain.octaves,
               "feature_size_m": terrain.feature_size, "amplitude_m": terrain.amplitude, "seed": SEED}
     result = _result("rays", device, params, **timing, rays_per_s=rays_per_s, hit_fraction=hits)
+    if device == "cpu" and not quick and (os.cpu_count() or 1) > 1:
+        result["processes"] = _rays_processes(heights.numpy(), cell, lidar, points, repeats)
     if anchor:
         sensor_z = float(out["sensor_z"].numpy()[0])
         distances = np.linalg.norm(points.astype(np.float64), axis=1)  # sensor frame, no augmentation: |p| = t
         result["anchor"] = _rays_anchor(heights.numpy()[0], cell, lidar, sensor_z, distances, rays_per_s, repeats)
+        procs = result.get("processes")
+        if procs and result["anchor"].get("available"):
+            for run in result["anchor"]["runs"]:
+                for kind in ("cast", "fresh"):
+                    run[kind]["processes_over_anchor"] = procs["rays_per_s"] / run[kind]["rays_per_s"]
     return result
+
+
+def _rays_processes(heights: np.ndarray, cell: float, lidar, single: np.ndarray, repeats: int) -> dict:
+    """The same scan split by azimuth columns over one process per core (``sim/parallel.py``)."""
+    from .sim.parallel import ProcessTracer
+
+    processes = min(os.cpu_count() or 1, 8)
+    with ProcessTracer(heights, cell, lidar, seed=SEED, processes=processes, reach=0.0) as tracer:
+        times = _time(tracer.cast, "cpu", repeats)
+        same = bool(np.array_equal(tracer.cast().reshape(single.shape), single, equal_nan=True))
+    timing = _timing(times)
+    return {"processes": processes, **timing, "rays_per_s": lidar.num_rays / timing["median_s"], "equal_to_one_process": same}
 
 
 def heightfield_triangles(heights: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
@@ -911,14 +930,20 @@ def format_table(report: dict) -> str:
         r, p = res["rays"], res["rays"]["params"]
         rows.append(("rays", f"{p['rays']:,} rays ({p['lidar']} {p['channels']}x{p['columns']}), {p['size']}x{p['size']} @ {p['cell_m']:g} m",
                      _ms(r["median_s"]), f"{_rate(r['rays_per_s'])}rays/s (hits {100 * r['hit_fraction']:.1f}%)"))
+        procs = r.get("processes")
+        if procs:
+            rows.append((f"rays {procs['processes']} proc", f"the same scan, columns interleaved over {procs['processes']} processes (sim/parallel.py); "
+                                                        f"points equal to 1 process: {'yes' if procs['equal_to_one_process'] else 'NO'}",
+                         _ms(procs["median_s"]), f"{_rate(procs['rays_per_s'])}rays/s ({procs['rays_per_s'] / r['rays_per_s']:.2f}x 1 process)"))
         a = r.get("anchor")
         if a and a["available"]:
             for run in a["runs"]:
                 threads = f"{a['cpu_count']} threads" if run["threads"] == "all" else "1 thread"
                 for kind, what in (("cast", "cast only (BVH built)"), ("fresh", "fresh: BVH build + cast")):
                     t = run[kind]
+                    with_procs = f", {procs['processes']} proc = {_x(t['processes_over_anchor'])}" if "processes_over_anchor" in t else ""
                     rows.append(("  anchor", f"open3d {a['version']} RaycastingScene, {what}, {threads}",
-                                 _ms(t["median_s"]), f"{_rate(t['rays_per_s'])}rays/s; ours = {_x(t['ours_over_anchor'])} anchor"))
+                                 _ms(t["median_s"]), f"{_rate(t['rays_per_s'])}rays/s; ours = {_x(t['ours_over_anchor'])} anchor{with_procs}"))
             g = a["agreement"]
             rows.append(("  agreement", f"|t_ours - t_open3d| <= {1e3 * g['tolerance_m']:g} mm on {g['both_hit_within_tolerance']:,}"
                                         f" of {g['both_hit']:,} rays both hit; one-sided hits {g['only_ours_hit']} ours, {g['only_anchor_hit']} open3d",

@@ -45,10 +45,15 @@ def trace(
     device: str,
     augment: bool = False,
     reach: float = 0.0,
+    columns: range | None = None,
+    out: wp.array | None = None,
 ) -> tuple[wp.array, wp.array]:
     """Cast every ray of ``lidar`` over every heightfield in one launch.
 
     ``reach > 0`` stops rays where they leave the square ``+-reach`` m around the sensor.
+    ``columns`` (a ``range`` of azimuth columns) casts only those columns (every ring), writing their rays
+    into ``out`` (a ``(batch, rays)`` vec3 array; other rays are left as they are): how
+    ``sim/parallel.py`` splits one scan across processes.
 
     Returns ``(points, sensor_z)``: ``(batch, rays)`` vec3 hits in each sensor frame (NaN where
     no return) and each sensor's world height.
@@ -59,14 +64,18 @@ def trace(
     tile_max = wp.empty(tiles, dtype=float, device=device)
     terrain_max = wp.full(batch, -1.0e30, dtype=float, device=device)
     sensor_z = wp.empty(batch, dtype=float, device=device)
-    points = wp.empty((batch, directions.shape[0]), dtype=wp.vec3, device=device)
-    wp.launch(heightfield_kernels.tile_max_heights, dim=tiles, inputs=[heights, TILE], outputs=[tile_max, terrain_max], device=device)
-    wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
+    points = out if out is not None else wp.empty((batch, directions.shape[0]), dtype=wp.vec3, device=device)
     rings = lidar.channels
     by_column = columns_walkable(lidar)
+    total = directions.shape[0] // rings
+    columns = columns if columns is not None else range(total)
+    require(isinstance(columns, range) and len(columns) > 0 and columns.step > 0 and 0 <= columns.start and columns[-1] < total
+            and (by_column or len(columns) == total), "columns", columns, f"must be a non-empty range within [0, {total}) of a scan with no vertical ring")
+    wp.launch(heightfield_kernels.tile_max_heights, dim=tiles, inputs=[heights, TILE], outputs=[tile_max, terrain_max], device=device)
+    wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
     wp.launch(
         raycast_kernels.cast_columns if by_column else raycast_kernels.cast_rays,
-        dim=(batch, directions.shape[0] // rings) if by_column else points.shape,
+        dim=(batch, len(columns)) if by_column else points.shape,
         inputs=[
             heights,
             tile_max,
@@ -75,7 +84,7 @@ def trace(
             TILE,
             float(cell),
             directions,
-            *([rings] if by_column else []),
+            *([rings, columns.start, columns.step] if by_column else []),
             float(lidar.min_range),
             float(lidar.max_range),
             float(lidar.range_noise_std),

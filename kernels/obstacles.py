@@ -55,6 +55,7 @@ class Obstacle:
 @wp.kernel
 def sample_obstacles(
     seed: int,
+    first: int,
     specs: wp.array(dtype=ObstacleSpec),
     slot_spec: wp.array(dtype=int),
     slot_rank: wp.array(dtype=int),
@@ -64,7 +65,7 @@ def sample_obstacles(
     keep_out: float,
     obstacles: wp.array2d(dtype=Obstacle),
 ):
-    """Draw obstacle ``s`` of sample ``b``.
+    """Draw obstacle ``s`` of sample ``first + b`` (a batch split across processes draws the same).
 
     Slot ``s`` is the ``slot_rank[s]``-th possible obstacle of spec ``slot_spec[s]``; the spec's
     count is drawn once per sample (every slot of the spec draws the same number) and slots
@@ -76,12 +77,12 @@ def sample_obstacles(
     spec = specs[k]
     out = Obstacle()
     out.kind = NONE
-    count_state = stream_state(seed, b, STREAM_OBSTACLES, k)
+    count_state = stream_state(seed, first + b, STREAM_OBSTACLES, k)
     count = wp.randi(count_state, spec.count_min, spec.count_max + 1)
     if slot_rank[s] >= count:
         obstacles[b, s] = out
         return
-    state = stream_state(seed, b, STREAM_OBSTACLES, 65536 + s)
+    state = stream_state(seed, first + b, STREAM_OBSTACLES, 65536 + s)
     # (wp.randf advances ``state`` in place, so it is called here, not in a helper)
     width = wp.randf(state, spec.width_min, spec.width_max)
     length = wp.randf(state, spec.length_min, spec.length_max)

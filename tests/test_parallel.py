@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import warp_terrain as wt
-from warp_terrain.sim.parallel import ProcessTracer
+from warp_terrain.sim.parallel import ProcessHeightfields, ProcessTracer
 from warp_terrain.sim.scan import trace
 from warp_terrain.sim.terrain import ObstacleConfig, TerrainConfig, make_heightfields
 
@@ -23,6 +23,18 @@ def test_processes_write_the_same_points_as_one_process():
             assert points.shape == single.shape
             assert np.array_equal(points, single, equal_nan=True)
     assert np.isfinite(single[..., 0]).mean() > 0.2
+
+
+def test_processes_make_the_same_heightfields_as_one_process():
+    cfg = TerrainConfig(octaves=5, feature_size=6.0, cell=0.125)
+    cfg.rocks = ObstacleConfig(count_min=1, count_max=3)
+    cfg.pits = ObstacleConfig(count_min=1, count_max=2)
+    single = make_heightfields(5, 65, cfg, seed=4, device="cpu").numpy()
+    with ProcessHeightfields(5, 65, cfg, seed=4, processes=2) as terrains:
+        assert np.array_equal(terrains.make(), single)
+    # sample first + b is the same terrain in any batch
+    tail = make_heightfields(2, 65, cfg, seed=4, device="cpu", first=3).numpy()
+    assert np.array_equal(tail, single[3:])
 
 
 def test_a_scan_with_a_vertical_ring_cannot_be_split():

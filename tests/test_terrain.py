@@ -24,7 +24,7 @@ def _per_vertex_wp_noise(batch, size, cfg, seed, feature_size):
 
     fields = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device="cpu")
     offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device="cpu")
-    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[seed], outputs=[fields, offsets], device="cpu")
+    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[seed, 0], outputs=[fields, offsets], device="cpu")
     heights = wp.empty((batch, size, size), dtype=float, device="cpu")
     inputs = [fields, offsets, cfg.cell, cfg.persistence, cfg.lacunarity,
               per_sample(feature_size, batch, "cpu", "feature_size"), per_sample(cfg.amplitude, batch, "cpu", "amplitude")]

@@ -193,9 +193,26 @@ def bench_noise(device=None, quick: bool = False, repeats: int | None = None, an
         heightfields_per_s=batch / timing["median_s"],
         samples_per_s=samples_per_s,  # fBm values (vertices), as the anchors count them
     )
+    if device == "cpu" and not quick and (os.cpu_count() or 1) > 1:
+        result["processes"] = _noise_processes(batch, size, cfg, run().numpy(), repeats)
     if anchor:
         result["anchor"] = _noise_anchor(batch, size, cfg, repeats, samples_per_s)
+        procs = result.get("processes")
+        if procs and result["anchor"].get("available"):
+            result["anchor"]["processes_over_anchor"] = procs["samples_per_s"] / result["anchor"]["samples_per_s"]
     return result
+
+
+def _noise_processes(batch: int, size: int, cfg: TerrainConfig, single: np.ndarray, repeats: int) -> dict:
+    """The same heightfields split by samples over one process per core (``sim/parallel.py``)."""
+    from .sim.parallel import ProcessHeightfields
+
+    processes = min(os.cpu_count() or 1, 8)
+    with ProcessHeightfields(batch, size, cfg, seed=SEED, processes=processes) as terrains:
+        times = _time(terrains.make, "cpu", repeats)
+        same = bool(np.array_equal(terrains.make(), single))
+    timing = _timing(times)
+    return {"processes": processes, **timing, "samples_per_s": batch * size * size / timing["median_s"], "equal_to_one_process": same}
 
 
 def _noise_anchor(batch: int, size: int, cfg: TerrainConfig, repeats: int, ours_per_s: float) -> dict:
@@ -920,10 +937,16 @@ def format_table(report: dict) -> str:
         r, p = res["noise"], res["noise"]["params"]
         rows.append(("noise", f"{p['batch']} fBm heightfields {p['size']}x{p['size']}, {p['octaves']} octaves",
                      _ms(r["median_s"]), f"{_rate(r['samples_per_s'])}samples/s ({r['heightfields_per_s']:.0f} fields/s)"))
+        procs = r.get("processes")
+        if procs:
+            rows.append((f"noise {procs['processes']} proc", f"the same fields, samples split over {procs['processes']} processes (sim/parallel.py); "
+                                                         f"equal to 1 process: {'yes' if procs['equal_to_one_process'] else 'NO'}",
+                         _ms(procs["median_s"]), f"{_rate(procs['samples_per_s'])}samples/s ({procs['samples_per_s'] / r['samples_per_s']:.2f}x 1 process)"))
         a = r.get("anchor")
         if a and a["available"]:
+            with_procs = f", {procs['processes']} proc = {_x(a['processes_over_anchor'])}" if "processes_over_anchor" in a else ""
             rows.append(("  anchor", f"pyfastnoiselite {a['version']} Perlin FBm, {a['octaves']} octaves, 1 thread, {a['samples']:,} samples",
-                         _ms(a["median_s"]), f"{_rate(a['samples_per_s'])}samples/s; ours = {_x(a['ours_over_anchor'])} anchor"))
+                         _ms(a["median_s"]), f"{_rate(a['samples_per_s'])}samples/s; ours = {_x(a['ours_over_anchor'])} anchor{with_procs}"))
         elif a:
             missing("  anchor", a)
     if "rays" in res:

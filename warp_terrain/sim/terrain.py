@@ -188,16 +188,20 @@ def make_heightfields(
     feature_size=None,
     amplitude=None,
     obstacle_region: float | None = None,
+    first: int = 0,
+    out: wp.array | None = None,
 ) -> wp.array:
     """``(batch, size, size)`` Warp heightfields: fBm relief, then obstacles stamped in.
 
     ``feature_size`` / ``amplitude`` override the config per sample (domain randomisation).
+    Samples are numbered from ``first`` (sample ``first + b`` is the same terrain in any batch,
+    so processes can split a batch: ``sim/parallel.py``); ``out`` receives them if given.
     """
     cell = cfg.cell
-    heights = wp.empty((batch, size, size), dtype=float, device=device)
+    heights = out if out is not None else wp.empty((batch, size, size), dtype=float, device=device)
     fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
     offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
-    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed], outputs=[fields_, offsets], device=device)
+    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed, int(first)], outputs=[fields_, offsets], device=device)
     features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size")
     amplitudes = per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude")
     if device == "cpu":
@@ -219,7 +223,7 @@ def make_heightfields(
         wp.launch(
             obstacle_kernels.sample_obstacles,
             dim=obstacles.shape,
-            inputs=[seed, specs, slot_spec, slot_rank, heights, cell, float(region), cfg.keep_out],
+            inputs=[seed, int(first), specs, slot_spec, slot_rank, heights, cell, float(region), cfg.keep_out],
             outputs=[obstacles],
             device=device,
         )

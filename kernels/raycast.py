@@ -132,6 +132,51 @@ def forward(current: int, candidate: int, step: int) -> int:
 
 
 @wp.func
+def axis_step(direction: float) -> int:
+    """+1, -1 or 0: how a ray moving by ``direction`` steps through cells along one axis."""
+    if direction > 0.0:
+        return 1
+    if direction < 0.0:
+        return -1
+    return 0
+
+
+@wp.func
+def inverse(direction: float, step: int) -> float:
+    """``1 / direction``, or 0 for an axis the ray does not move along."""
+    if step == 0:
+        return 0.0
+    return 1.0 / direction
+
+
+@wp.func
+def tile_exits(u0: float, v0: float, inv_du: float, inv_dv: float, ti: int, tj: int, tile: int, step_i: int, step_j: int) -> wp.vec2:
+    """Ray parameters at which the ray leaves tile ``(ti, tj)`` along each axis."""
+    return wp.vec2(
+        next_boundary(u0, inv_du, ti * tile + wp.max(step_i, 0) * (tile - 1), step_i),
+        next_boundary(v0, inv_dv, tj * tile + wp.max(step_j, 0) * (tile - 1), step_j),
+    )
+
+
+@wp.func
+def cell_beyond_tile(
+    exits: wp.vec2, t: float, i: int, j: int, ti: int, tj: int, tile: int, u0: float, v0: float, du: float, dv: float, step_i: int, step_j: int
+) -> wp.vec2i:
+    """The cell a ray enters when it leaves tile ``(ti, tj)`` at ``t``: the exit axis moves into
+    the next tile; the other follows the ray but never backwards (a ray through a tile corner
+    must not bounce between two tiles)."""
+    if exits[0] <= exits[1]:
+        return wp.vec2i(ti * tile + wp.max(step_i, 0) * tile - wp.max(-step_i, 0), forward(j, cell_index(v0 + dv * t, step_j), step_j))
+    return wp.vec2i(forward(i, cell_index(u0 + du * t, step_i), step_i), tj * tile + wp.max(step_j, 0) * tile - wp.max(-step_j, 0))
+
+
+@wp.func
+def corner_heights(heights: wp.array3d(dtype=float), b: int, i: int, j: int) -> wp.vec4:
+    """Heights of cell ``(i, j)``'s corners (i, j), (i+1, j), (i, j+1), (i+1, j+1)."""
+    return wp.vec4(heights[b, i, j], heights[b, i + 1, j], heights[b, i, j + 1], heights[b, i + 1, j + 1])
+
+
+@wp.func
 def trace_heightfield(
     heights: wp.array3d(dtype=float),
     tile_max: wp.array3d(dtype=float),
@@ -158,22 +203,10 @@ def trace_heightfield(
     """
     H = heights.shape[1]
     W = heights.shape[2]
-    step_i = int(0)
-    step_j = int(0)
-    inv_du = float(0.0)
-    inv_dv = float(0.0)
-    if du > 0.0:
-        step_i = 1
-    elif du < 0.0:
-        step_i = -1
-    if dv > 0.0:
-        step_j = 1
-    elif dv < 0.0:
-        step_j = -1
-    if step_i != 0:
-        inv_du = 1.0 / du
-    if step_j != 0:
-        inv_dv = 1.0 / dv
+    step_i = axis_step(du)
+    step_j = axis_step(dv)
+    inv_du = inverse(du, step_i)
+    inv_dv = inverse(dv, step_j)
     t = float(0.0)
     i = cell_index(u0, step_i)
     j = cell_index(v0, step_j)
@@ -189,33 +222,24 @@ def trace_heightfield(
         tj = j // tile
         if ti != open_ti or tj != open_tj:
             # entering a tile: skip it whole if the ray passes above its highest vertex
-            t_tu = next_boundary(u0, inv_du, ti * tile + wp.max(step_i, 0) * (tile - 1), step_i)
-            t_tv = next_boundary(v0, inv_dv, tj * tile + wp.max(step_j, 0) * (tile - 1), step_j)
-            t_tile = wp.min(wp.min(t_tu, t_tv), t_end)
+            exits = tile_exits(u0, v0, inv_du, inv_dv, ti, tj, tile, step_i, step_j)
+            t_tile = wp.min(wp.min(exits[0], exits[1]), t_end)
             if wp.min(z, z0 + dz * t_tile) > tile_max[b, ti, tj]:
                 if t_tile >= t_end:
                     return NO_HIT
                 t = wp.max(t, t_tile)
-                # the exit axis moves into the next tile; the other follows the ray but never
-                # backwards (a ray through a tile corner must not bounce between two tiles)
-                if t_tu <= t_tv:
-                    i = ti * tile + wp.max(step_i, 0) * tile - wp.max(-step_i, 0)
-                    j = forward(j, cell_index(v0 + dv * t, step_j), step_j)
-                else:
-                    j = tj * tile + wp.max(step_j, 0) * tile - wp.max(-step_j, 0)
-                    i = forward(i, cell_index(u0 + du * t, step_i), step_i)
+                entered = cell_beyond_tile(exits, t, i, j, ti, tj, tile, u0, v0, du, dv, step_i, step_j)
+                i = entered[0]
+                j = entered[1]
                 continue
             open_ti = ti
             open_tj = tj
         t_u = next_boundary(u0, inv_du, i, step_i)
         t_v = next_boundary(v0, inv_dv, j, step_j)
         t_cell = wp.max(wp.min(wp.min(t_u, t_v), t_end), t)
-        h00 = heights[b, i, j]
-        h10 = heights[b, i + 1, j]
-        h01 = heights[b, i, j + 1]
-        h11 = heights[b, i + 1, j + 1]
-        if wp.min(z, z0 + dz * t_cell) <= wp.max(wp.max(h00, h10), wp.max(h01, h11)):
-            hit = cell_hit(h00, h10, h01, h11, u0 - float(i), v0 - float(j), z0, du, dv, dz, t, t_cell)
+        corner = corner_heights(heights, b, i, j)
+        if wp.min(z, z0 + dz * t_cell) <= wp.max(wp.max(corner[0], corner[1]), wp.max(corner[2], corner[3])):
+            hit = cell_hit(corner[0], corner[1], corner[2], corner[3], u0 - float(i), v0 - float(j), z0, du, dv, dz, t, t_cell)
             if hit != NO_HIT:
                 return hit
         if t_u <= t_v:
@@ -356,24 +380,10 @@ def cast_columns(
     top = terrain_max[b]
     box = reach_box(H, W, cell, reach)
     s_box = wp.min(slab_exit(u0, du, box[0], box[1]), slab_exit(v0, dv, box[2], box[3]))
-
-    step_i = int(0)
-    step_j = int(0)
-    inv_du = float(0.0)
-    inv_dv = float(0.0)
-    if du > 0.0:
-        step_i = 1
-    elif du < 0.0:
-        step_i = -1
-    if dv > 0.0:
-        step_j = 1
-    elif dv < 0.0:
-        step_j = -1
-    if step_i != 0:
-        inv_du = 1.0 / du
-    if step_j != 0:
-        inv_dv = 1.0 / dv
-
+    step_i = axis_step(du)
+    step_j = axis_step(dv)
+    inv_du = inverse(du, step_i)
+    inv_dv = inverse(dv, step_j)
     s = float(0.0)
     i = cell_index(u0, step_i)
     j = cell_index(v0, step_j)
@@ -396,21 +406,17 @@ def cast_columns(
             tj = j // tile
             skipped = bool(False)
             if ti != open_ti or tj != open_tj:
-                t_tu = next_boundary(u0, inv_du, ti * tile + wp.max(step_i, 0) * (tile - 1), step_i)
-                t_tv = next_boundary(v0, inv_dv, tj * tile + wp.max(step_j, 0) * (tile - 1), step_j)
-                s_tile = wp.min(wp.min(t_tu, t_tv), s_end)
+                exits = tile_exits(u0, v0, inv_du, inv_dv, ti, tj, tile, step_i, step_j)
+                s_tile = wp.min(wp.min(exits[0], exits[1]), s_end)
                 if wp.min(z, z0 + slope * s_tile) > tile_max[b, ti, tj]:
                     skipped = True
                     if s_tile >= s_end:
                         ring_done = True
                     else:
                         s = wp.max(s, s_tile)
-                        if t_tu <= t_tv:
-                            i = ti * tile + wp.max(step_i, 0) * tile - wp.max(-step_i, 0)
-                            j = forward(j, cell_index(v0 + dv * s, step_j), step_j)
-                        else:
-                            j = tj * tile + wp.max(step_j, 0) * tile - wp.max(-step_j, 0)
-                            i = forward(i, cell_index(u0 + du * s, step_i), step_i)
+                        entered = cell_beyond_tile(exits, s, i, j, ti, tj, tile, u0, v0, du, dv, step_i, step_j)
+                        i = entered[0]
+                        j = entered[1]
                 else:
                     open_ti = ti
                     open_tj = tj
@@ -418,12 +424,9 @@ def cast_columns(
                 t_u = next_boundary(u0, inv_du, i, step_i)
                 t_v = next_boundary(v0, inv_dv, j, step_j)
                 s_cell = wp.max(wp.min(wp.min(t_u, t_v), s_end), s)
-                h00 = heights[b, i, j]
-                h10 = heights[b, i + 1, j]
-                h01 = heights[b, i, j + 1]
-                h11 = heights[b, i + 1, j + 1]
-                if wp.min(z, z0 + slope * s_cell) <= wp.max(wp.max(h00, h10), wp.max(h01, h11)):
-                    hit = cell_hit(h00, h10, h01, h11, u0 - float(i), v0 - float(j), z0, du, dv, slope, s, s_cell)
+                corner = corner_heights(heights, b, i, j)
+                if wp.min(z, z0 + slope * s_cell) <= wp.max(wp.max(corner[0], corner[1]), wp.max(corner[2], corner[3])):
+                    hit = cell_hit(corner[0], corner[1], corner[2], corner[3], u0 - float(i), v0 - float(j), z0, du, dv, slope, s, s_cell)
                     if hit != NO_HIT:
                         t_hit = hit / h
                         ring_done = True

@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from test_training import TINY as TRAINING_TINY
 
 import warp_terrain.training.loop as loop
 from warp_terrain.config import register_configs, to_run_config
@@ -39,19 +40,7 @@ TOTAL = 12  # the resumed runs' train.steps (the uninterrupted reference's lengt
 # images only at the end of a run, and constant learning rates, so that the killed run (a
 # long train.steps), the resumed one and the reference follow the same schedule
 TINY = [
-    "model=unet",
-    "model.ngf=8",
-    "model.ndf=8",
-    "model.unet_depth=3",
-    "data.map_size=41",
-    "terrain.margin=0.5",
-    "lidar=vlp16",
-    "lidar.azimuth_step_deg=2.0",
-    "train.batch_size=2",
-    "train.val_size=4",
-    "train.log_every=1",
-    "train.workers=0",
-    "train.progress=false",
+    *TRAINING_TINY,
     "train.device=cpu",  # deterministic kernels (the resumed weights match the reference bit for bit)
     "train.threads=1",  # on a small shared CPU two threads per step can be three times slower
     "train.val_every=100000",

@@ -2,8 +2,8 @@
 
 A crash or an error at any moment leaves either the old file or the new one, never half of
 one. An error leaves no temporary file behind; a killed process (SIGKILL, power cut) may leave
-its ``.NAME.XXXX`` temporary file, which is never taken for the target. The result gets the usual permissions (``0666 & ~umask``;
-``mkstemp`` alone would make it ``0600``).
+its ``.NAME.XXXX`` temporary file, which is never taken for the target. The result gets the
+usual permissions (``0666 & ~umask``; ``mkstemp`` alone would make it ``0600``).
 """
 
 from __future__ import annotations

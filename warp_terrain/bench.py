@@ -180,8 +180,10 @@ def bench_noise(device=None, quick: bool = False, repeats: int | None = None, an
     cfg = TerrainConfig(name="bench", octaves=5, feature_size=16.0, amplitude=1.5, cell=0.25)
     cfg.validate()
 
+    out = {}
+
     def run():
-        return make_heightfields(batch, size, cfg, SEED, device)
+        out["heights"] = make_heightfields(batch, size, cfg, SEED, device)
 
     times = _time(run, device, repeats)
     timing = _timing(times)
@@ -194,7 +196,7 @@ def bench_noise(device=None, quick: bool = False, repeats: int | None = None, an
         samples_per_s=samples_per_s,  # fBm values (vertices), as the anchors count them
     )
     if device == "cpu" and not quick and (os.cpu_count() or 1) > 1:
-        result["processes"] = _noise_processes(batch, size, cfg, run().numpy(), repeats)
+        result["processes"] = _noise_processes(batch, size, cfg, out["heights"].numpy(), repeats)
     if anchor:
         result["anchor"] = _noise_anchor(batch, size, cfg, repeats, samples_per_s)
         procs = result.get("processes")
@@ -918,6 +920,21 @@ def _x(ratio: float) -> str:
     return f"{ratio:.2f}x" if ratio < 10 else f"{ratio:.1f}x"
 
 
+def _processes_row(name: str, procs: dict, what: str, unit: str, single_per_s: float) -> tuple[str, str, str, str]:
+    """The table row of a workload split over processes (``sim/parallel.py``)."""
+    per_s = procs[f"{unit}_per_s"]
+    n = procs["processes"]
+    return (f"{name} {n} proc", f"{what} over {n} processes (sim/parallel.py); equal to 1 process: {'yes' if procs['equal_to_one_process'] else 'NO'}",
+            _ms(procs["median_s"]), f"{_rate(per_s)}{unit}/s ({per_s / single_per_s:.2f}x 1 process)")
+
+
+def _processes_over(procs: dict | None, anchor_timing: dict) -> str:
+    """``", N proc = R"``: the process split's ratio to an anchor timing, when there is one."""
+    if not procs or "processes_over_anchor" not in anchor_timing:
+        return ""
+    return f", {procs['processes']} proc = {_x(anchor_timing['processes_over_anchor'])}"
+
+
 def format_table(report: dict) -> str:
     """A readable table of :func:`run_benchmarks`' result; "ours = N x anchor" compares our
     throughput with the anchor's on the same workload (> 1: ours is faster)."""
@@ -939,12 +956,10 @@ def format_table(report: dict) -> str:
                      _ms(r["median_s"]), f"{_rate(r['samples_per_s'])}samples/s ({r['heightfields_per_s']:.0f} fields/s)"))
         procs = r.get("processes")
         if procs:
-            rows.append((f"noise {procs['processes']} proc", f"the same fields, samples split over {procs['processes']} processes (sim/parallel.py); "
-                                                         f"equal to 1 process: {'yes' if procs['equal_to_one_process'] else 'NO'}",
-                         _ms(procs["median_s"]), f"{_rate(procs['samples_per_s'])}samples/s ({procs['samples_per_s'] / r['samples_per_s']:.2f}x 1 process)"))
+            rows.append(_processes_row("noise", procs, "the same fields, samples split", "samples", r["samples_per_s"]))
         a = r.get("anchor")
         if a and a["available"]:
-            with_procs = f", {procs['processes']} proc = {_x(a['processes_over_anchor'])}" if "processes_over_anchor" in a else ""
+            with_procs = _processes_over(procs, a)
             rows.append(("  anchor", f"pyfastnoiselite {a['version']} Perlin FBm, {a['octaves']} octaves, 1 thread, {a['samples']:,} samples",
                          _ms(a["median_s"]), f"{_rate(a['samples_per_s'])}samples/s; ours = {_x(a['ours_over_anchor'])} anchor{with_procs}"))
         elif a:
@@ -955,16 +970,14 @@ def format_table(report: dict) -> str:
                      _ms(r["median_s"]), f"{_rate(r['rays_per_s'])}rays/s (hits {100 * r['hit_fraction']:.1f}%)"))
         procs = r.get("processes")
         if procs:
-            rows.append((f"rays {procs['processes']} proc", f"the same scan, columns interleaved over {procs['processes']} processes (sim/parallel.py); "
-                                                        f"points equal to 1 process: {'yes' if procs['equal_to_one_process'] else 'NO'}",
-                         _ms(procs["median_s"]), f"{_rate(procs['rays_per_s'])}rays/s ({procs['rays_per_s'] / r['rays_per_s']:.2f}x 1 process)"))
+            rows.append(_processes_row("rays", procs, "the same scan, columns interleaved", "rays", r["rays_per_s"]))
         a = r.get("anchor")
         if a and a["available"]:
             for run in a["runs"]:
                 threads = f"{a['cpu_count']} threads" if run["threads"] == "all" else "1 thread"
                 for kind, what in (("cast", "cast only (BVH built)"), ("fresh", "fresh: BVH build + cast")):
                     t = run[kind]
-                    with_procs = f", {procs['processes']} proc = {_x(t['processes_over_anchor'])}" if "processes_over_anchor" in t else ""
+                    with_procs = _processes_over(procs, t)
                     rows.append(("  anchor", f"open3d {a['version']} RaycastingScene, {what}, {threads}",
                                  _ms(t["median_s"]), f"{_rate(t['rays_per_s'])}rays/s; ours = {_x(t['ours_over_anchor'])} anchor{with_procs}"))
             g = a["agreement"]

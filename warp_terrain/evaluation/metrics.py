@@ -55,17 +55,22 @@ def _check_same(prediction: torch.Tensor, target: torch.Tensor, other: torch.Ten
         )
 
 
+def _selected_errors(prediction: torch.Tensor, target: torch.Tensor, cells: torch.Tensor) -> torch.Tensor | None:
+    """float64 errors on the cells where ``cells`` is true; None when no cell is selected."""
+    _check_same(prediction, target, cells, "cells")
+    cells = cells.bool()
+    if not bool(cells.any()):
+        return None
+    return (prediction.double() - target.double())[cells]
+
+
 def masked_rmse(prediction: torch.Tensor, target: torch.Tensor, cells: torch.Tensor) -> float:
     """Root-mean-square error (metres) over the cells where ``cells`` is true, pooled over the batch.
 
     NaN when no cell is selected.
     """
-    _check_same(prediction, target, cells, "cells")
-    cells = cells.bool()
-    if not bool(cells.any()):
-        return float("nan")
-    err = (prediction.double() - target.double())[cells]
-    return float(torch.sqrt((err * err).mean()))
+    err = _selected_errors(prediction, target, cells)
+    return float("nan") if err is None else float(torch.sqrt((err * err).mean()))
 
 
 def masked_mae(prediction: torch.Tensor, target: torch.Tensor, cells: torch.Tensor) -> float:
@@ -73,11 +78,8 @@ def masked_mae(prediction: torch.Tensor, target: torch.Tensor, cells: torch.Tens
 
     NaN when no cell is selected.
     """
-    _check_same(prediction, target, cells, "cells")
-    cells = cells.bool()
-    if not bool(cells.any()):
-        return float("nan")
-    return float((prediction.double() - target.double())[cells].abs().mean())
+    err = _selected_errors(prediction, target, cells)
+    return float("nan") if err is None else float(err.abs().mean())
 
 
 def range_cells(map_size: int, map_cell: float, max_range: float = math.inf, device=None) -> torch.Tensor:

@@ -12,17 +12,19 @@ import os
 
 import warp as wp
 
+from .scan import TILE
+
 HEADROOM = 0.8  # a batch may use at most this fraction of the free memory
 
 
-def batch_bytes(batch: int, terrain_size: int, rays: int, map_size: int, tile: int = 8) -> int:
-    """Bytes ``generate_batch`` allocates for ``batch`` pairs (float32/int32 arrays)."""
-    tiles = ((terrain_size - 2) // tile + 1) ** 2
+def batch_bytes(batch: int, terrain_size: int, rays: int, map_size: int) -> int:
+    """Bytes ``generate_batch`` allocates for ``batch`` pairs."""
+    tiles = ((terrain_size - 2) // TILE + 1) ** 2
     per_sample = (
         4 * terrain_size**2  # heights
         + 4 * tiles  # max-height tiles
         + 12 * rays  # hits (vec3)
-        + 4 * 3 * map_size**2  # binning: sum, count, max
+        + (8 + 4 + 4) * map_size**2  # binning: float64 sum, count, max
         + 4 * 4 * map_size**2  # scan, scan_max, mask, target
         + 4 * 8  # sensor height, terrain max, target min/max, noise range
     )

@@ -144,6 +144,13 @@ class _Shared:
     _workers: _Workers | None = None
     _shms: tuple = ()
 
+    def _start(self, jobs: list[tuple]) -> None:
+        try:
+            self._workers = _Workers(jobs)
+        except BaseException:  # a worker failed to start: free the shared memory too
+            self.close()
+            raise
+
     def close(self) -> None:
         if self._workers is not None:
             self._workers.close()
@@ -188,11 +195,7 @@ class ProcessTracer(_Shared):
         self.points = flat.reshape(heights.shape[0], lidar.num_rays, 3)
         jobs = [(_trace_job, (heights_shm.name, heights.shape, points_shm.name, flat.shape, float(cell), lidar, int(seed),
                               float(reach), range(k, lidar.columns, processes))) for k in range(processes)]
-        try:
-            self._workers = _Workers(jobs)
-        except BaseException:
-            self.close()
-            raise
+        self._start(jobs)
 
     def cast(self) -> np.ndarray:
         self._workers.run()
@@ -214,11 +217,7 @@ class ProcessHeightfields(_Shared):
         self._shms = (shm,)
         bounds = np.linspace(0, batch, processes + 1).round().astype(int)
         jobs = [(_terrain_job, (shm.name, self.heights.shape, cfg, int(seed), int(bounds[k]), int(bounds[k + 1]))) for k in range(processes)]
-        try:
-            self._workers = _Workers(jobs)
-        except BaseException:
-            self.close()
-            raise
+        self._start(jobs)
 
     def make(self) -> np.ndarray:
         self._workers.run()

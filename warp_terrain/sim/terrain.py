@@ -159,10 +159,7 @@ def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features:
         span = (max(rows, columns) - 1) * cfg.cell / feature_min * max(frequencies[:table])
         n = math.ceil(span) + 4  # one cell below the grid, the far corner, and rounding
         gradients = wp.empty((batch, table, n, n), dtype=wp.vec2, device=device)
-    else:
-        gradients = wp.zeros((batch, 1, 2, 2), dtype=wp.vec2, device=device)
-    origin = wp.zeros((batch, gradients.shape[1]), dtype=wp.vec2i, device=device)
-    if table:
+        origin = wp.empty((batch, table), dtype=wp.vec2i, device=device)
         wp.launch(
             noise_kernels.lattice_gradients,
             dim=gradients.shape,
@@ -170,6 +167,9 @@ def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features:
             outputs=[origin, gradients],
             device=device,
         )
+    else:  # every octave reads wp.noise; the kernel still takes (unused) arrays
+        gradients = wp.zeros((batch, 1, 2, 2), dtype=wp.vec2, device=device)
+        origin = wp.zeros((batch, 1), dtype=wp.vec2i, device=device)
     wp.launch(
         noise_kernels.fractal_rows,
         dim=(batch, rows),

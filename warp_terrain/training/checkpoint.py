@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ..atomic import atomic_open
+from .config import RESUME_LATEST, RESUME_OFF
 
 LATEST = "latest.pt"
 BEST = "best.pt"
@@ -34,7 +35,7 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     kill or a power cut mid-write leaves ``.latest.pt.XXXX.pt`` behind, as large as a
     checkpoint, one per crash). Call it when no other process writes to ``folder``."""
     folder = Path(folder)
-    stale = [p for p in folder.glob(".*") if p.is_file() and p.name.startswith((f".{LATEST}.", f".{BEST}."))]
+    stale = [p for name in (LATEST, BEST) for p in folder.glob(f".{name}.*") if p.is_file()]
     for p in stale:
         p.unlink(missing_ok=True)
     return stale
@@ -81,9 +82,9 @@ def resolve_resume(resume: str, run_dir: Path) -> Path | None:
     """The checkpoint to continue from: None for ``false``; the run folder's latest for ``true``;
     else a checkpoint file or a run folder (its ``checkpoints/latest.pt``)."""
     value = str(resume).strip()
-    if value.lower() in ("false", "no", "0", "none", ""):
+    if value.lower() in RESUME_OFF:
         return None
-    if value.lower() in ("true", "yes", "1"):
+    if value.lower() in RESUME_LATEST:
         path = run_dir / "checkpoints" / LATEST
         if not path.is_file():
             raise ValueError(f"train.resume=true: no checkpoint at {str(path)!r} (set hydra.run.dir to the run folder to continue)")

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from ..sim.validation import check_finite, require
 
-RESUME_WORDS = ("false", "no", "0", "none", "", "true", "yes", "1")
+RESUME_OFF = ("false", "no", "0", "none", "")  # train.resume values that start afresh
+RESUME_LATEST = ("true", "yes", "1")  # ... that continue the run folder's latest checkpoint
 
 
 @dataclass
@@ -56,7 +57,7 @@ class TrainConfig:
         if self.dataset:
             require(Path(self.dataset).expanduser().is_dir(), "dataset", self.dataset, "no such folder (write one with `warp-terrain generate`)")
         resume = str(self.resume).strip()
-        if resume.lower() not in RESUME_WORDS:
+        if resume.lower() not in RESUME_OFF + RESUME_LATEST:
             require(Path(resume).expanduser().exists(), "resume", self.resume, "must be false, true, or an existing run folder or checkpoint file")
         check_finite("lr_decay_from", self.lr_decay_from)
         require(0.0 <= self.lr_decay_from <= 1.0, "lr_decay_from", self.lr_decay_from, "must be in [0, 1]")

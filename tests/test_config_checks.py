@@ -87,6 +87,9 @@ INVALID = {
     "model.beta2": -0.1,
     "model.residual": "sometimes",
     "model.unobserved_weight": 0.0,
+    "model.height_scale_min": -0.05,
+    "model.uncertainty": "maybe",
+    "model.relief_relative_loss": "often",
     "train.steps": 0,
     "train.batch_size": 0,
     "train.val_every": 0,
@@ -150,6 +153,7 @@ def test_invalid_value_is_refused_naming_the_key(key):
     [
         ({"model": {"name": "paper"}, "data": {"map_size": 64}}, "data.map_size"),
         ({"model": {"residual": True, "in_channels": 1}}, "model.residual"),
+        ({"model": {"relief_relative_loss": True}}, "model.relief_relative_loss"),
         ({"terrain": {"keep_out": 16.0, "cylinders": {"count_min": 1, "count_max": 2}}}, "terrain.keep_out"),
         ({"terrain": {"keep_out": 3.0, "obstacle_region": 2.0, "pits": {"count_max": 1}}}, "terrain.keep_out"),
     ],

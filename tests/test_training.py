@@ -151,6 +151,19 @@ def test_training_logs_checkpoints_and_resumes_exactly(tmp_path):
     assert [e.step for e in _events(tmp_path / "run").Scalars("loss/l1")][-2:] == [5, 6]
 
 
+def test_the_scaled_residual_model_with_uncertainty_trains_and_logs_its_calibration(tmp_path):
+    cfg = run_config(*TINY, "model.in_channels=2", "model.residual=true", "model.height_scale_min=0.05",
+                     "model.uncertainty=true", "train.steps=2", "train.val_every=2")
+    summary = train(cfg, tmp_path / "run")
+    scalars = _events(tmp_path / "run").Tags()["scalars"]
+    for tag in ("loss/nll", "val/uncertainty_within_1sigma_unobserved", "val/uncertainty_within_2sigma_unobserved",
+                "val/uncertainty_rms_sigma_unobserved"):
+        assert tag in scalars, tag
+    from warp_terrain.evaluation.reconstructor import Reconstructor
+
+    assert Reconstructor.load(summary["checkpoint"], device="cpu").has_uncertainty
+
+
 def test_same_seed_and_config_train_bit_identically_on_cpu(tmp_path, monkeypatch):
     """Two fresh runs with one seed: the same batches, so bit-identical losses and weights;
     another seed draws other batches and ends elsewhere."""

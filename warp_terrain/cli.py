@@ -370,7 +370,8 @@ def _add_model(p: argparse.ArgumentParser) -> None:
 def add_reconstruct(sub) -> None:
     p = sub.add_parser("reconstruct", help="elevation map from a point-cloud file (.npy .ply .pcd .las .laz)",
                        description="Read a point cloud, move it into the sensor frame, project it into a map and fill "
-                                   "it in with the model. Writes an .npz (map, mask) and a PNG preview.")
+                                   "it in with the model. Writes an .npz (height, mask, and uncertainty: each cell's standard "
+                                   "deviation in metres, if the model predicts one) and a PNG preview.")
     p.add_argument("file", help="the point cloud (.npy (N,3), .ply, .pcd, .las, .laz)")
     p.add_argument("--out", default=None, metavar="OUT.npz", help="output (default: FILE with .npz); a PNG preview is written beside it")
     p.add_argument("--map-size", type=_positive_int, default=121, metavar="S", help="cells per side (default 121)")
@@ -402,20 +403,21 @@ def cmd_reconstruct(args) -> int:
     if matrix is not None:
         points = apply_transform(points, matrix)
     rec = Reconstructor.load(args.model, device=args.device)
-    height, mask = rec.reconstruct_with_mask(points, args.map_size, args.map_cell)
+    maps = rec.reconstruct_all(points, args.map_size, args.map_cell)
     with atomic_open(out) as f:
-        np.savez_compressed(f, height=height, mask=mask, map_cell=np.float32(args.map_cell))
+        np.savez_compressed(f, **maps, map_cell=np.float32(args.map_cell))
     png = out.with_suffix(".png")
-    save_map_preview(height, mask, args.map_cell, png, title=source.name)
-    print(json.dumps({"npz": str(out), "png": str(png), "points": int(len(points)), "observed_cells": int(mask.sum()),
-                      "map_size": args.map_size, "map_cell": args.map_cell}))
+    save_map_preview(maps["height"], maps["mask"], args.map_cell, png, title=source.name)
+    print(json.dumps({"npz": str(out), "png": str(png), "points": int(len(points)), "observed_cells": int(maps["mask"].sum()),
+                      "map_size": args.map_size, "map_cell": args.map_cell, "uncertainty": "uncertainty" in maps}))
     return 0
 
 
 # ------------------------------------------------------------------------------ export-onnx
 def add_export_onnx(sub) -> None:
     p = sub.add_parser("export-onnx", help="export the generator to ONNX, checked against torch with ONNX Runtime",
-                       description="Export the generator (input 'condition' (B,C,S,S), output 'height' (B,1,S,S)) and "
+                       description="Export the generator (input 'condition' (B,C,S,S), output 'height' (B,1,S,S), and "
+                                   "'log_variance' (B,1,S,S) if the model predicts its uncertainty) and "
                                    "check it against torch on generated scans; prints the largest difference and the "
                                    "latency of both.")
     p.add_argument("out", help="OUT.onnx")
@@ -430,9 +432,9 @@ def cmd_export_onnx(args) -> int:
     from .export.onnx import check_onnx, export_onnx
 
     rec = Reconstructor.load(args.model, device="cpu")
-    path = export_onnx(rec.generator, args.out, rec.model_config.in_channels, args.map_size)
+    path = export_onnx(rec.generator, args.out, rec.model_config.in_channels, args.map_size, uncertainty=rec.has_uncertainty)
     batch = generate_batch(4, {"data": {"map_size": args.map_size}}, seed=0, device="cpu")
-    report = check_onnx(rec.generator, path, rec.condition(batch.scan, batch.mask))
+    report = check_onnx(rec.generator, path, rec.condition(batch.scan, batch.mask), uncertainty=rec.has_uncertainty)
     report["onnx"] = str(path)
     print(json.dumps(report))
     if report["max_abs_diff"] > 1e-4:

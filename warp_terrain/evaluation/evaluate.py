@@ -18,7 +18,9 @@ ground (the same seed with every obstacle count set to zero: see ``metrics``).
 
 A *predictor* is any ``f(scan, mask) -> prediction`` on ``(B, 1, S, S)`` tensors: the classical
 fills in :data:`~warp_terrain.evaluation.baselines.BASELINES` are predictors, and
-:func:`model_predictor` wraps a trained model as one. :func:`evaluate` runs every predictor on
+:func:`model_predictor` wraps a trained model as one. A predictor may also return
+``(prediction, sigma)``, a standard deviation per cell: its calibration on unobserved cells is
+then scored too (``metrics.calibration``). :func:`evaluate` runs every predictor on
 every test set and returns plain dicts (JSON-ready); :func:`format_table` and
 :func:`format_markdown` render them, :func:`write_figure` draws a sample per setting.
 """
@@ -39,7 +41,7 @@ from ..paths import file_name, output_path
 from ..sim import SimConfig, generate_batch, lidar_preset, resolve_device
 from ..sim.terrain import OBSTACLE_KINDS, ObstacleConfig
 from .baselines import BASELINES
-from .metrics import OBSTACLE_THRESHOLD, error_metrics, masked_rmse, obstacle_iou, pit_recall, range_cells
+from .metrics import OBSTACLE_THRESHOLD, calibration, error_metrics, masked_rmse, obstacle_iou, pit_recall, range_cells
 
 __all__ = [
     "CHUNK",
@@ -73,7 +75,7 @@ QUICK_SIZE = 4
 POSITIVE_KINDS = ("cylinders", "boxes", "rocks")
 NEGATIVE_KINDS = ("pits", "ditches")
 
-Predictor = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+Predictor = Callable[[torch.Tensor, torch.Tensor], torch.Tensor | tuple[torch.Tensor, torch.Tensor]]
 
 
 # ------------------------------------------------------------------------------ test sets
@@ -196,9 +198,12 @@ def load_model_predictor(path=None, device=None, chunk: int = 16) -> tuple[Predi
 
     rec = Reconstructor.load(path, device=device)
 
-    def predict(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        outs = [rec.predict_maps(scan[i : i + chunk], mask[i : i + chunk])[:, :1].float() for i in range(0, scan.shape[0], chunk)]
-        return torch.cat(outs).to(scan.device)
+    def predict(scan: torch.Tensor, mask: torch.Tensor):
+        outs = [rec.predict_maps_with_uncertainty(scan[i : i + chunk], mask[i : i + chunk]) for i in range(0, scan.shape[0], chunk)]
+        height = torch.cat([h.float() for h, _ in outs]).to(scan.device)
+        if not rec.has_uncertainty:
+            return height
+        return height, torch.cat([s.float() for _, s in outs]).to(scan.device)
 
     info = {
         "checkpoint": str(path if path is not None else pretrained_path()),
@@ -206,6 +211,7 @@ def load_model_predictor(path=None, device=None, chunk: int = 16) -> tuple[Predi
         "in_channels": rec.model_config.in_channels,
         "generator": rec.model_config.name,
         "residual": rec.model_config.residual,
+        "uncertainty": rec.has_uncertainty,
     }
     return predict, info
 
@@ -216,21 +222,29 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def _run(predictor: Predictor, ts: EvalSet, device: str) -> tuple[torch.Tensor, float]:
+def _run(predictor: Predictor, ts: EvalSet, device: str) -> tuple[torch.Tensor, torch.Tensor | None, float]:
+    """``(prediction, sigma or None, seconds)``, on the CPU."""
     scan, mask = ts.scan.to(device), ts.mask.to(device)
     _sync(device)
     start = time.perf_counter()
-    pred = predictor(scan, mask)
+    out = predictor(scan, mask)
     _sync(device)
     seconds = time.perf_counter() - start
-    if tuple(pred.shape) != tuple(ts.target.shape):
-        raise ValueError(f"predictor returned shape {tuple(pred.shape)}, expected {tuple(ts.target.shape)}")
-    return pred.detach().float().cpu(), seconds
+    pred, sigma = out if isinstance(out, tuple) else (out, None)
+    for what, t in (("prediction", pred), ("sigma", sigma)):
+        if t is not None and tuple(t.shape) != tuple(ts.target.shape):
+            raise ValueError(f"predictor returned a {what} of shape {tuple(t.shape)}, expected {tuple(ts.target.shape)}")
+    return pred.detach().float().cpu(), None if sigma is None else sigma.detach().float().cpu(), seconds
 
 
-def score(pred: torch.Tensor, ts: EvalSet, in_range: torch.Tensor, threshold: float = OBSTACLE_THRESHOLD) -> dict[str, float]:
-    """Every metric of one prediction of a test set."""
+def score(
+    pred: torch.Tensor, ts: EvalSet, in_range: torch.Tensor, threshold: float = OBSTACLE_THRESHOLD, sigma: torch.Tensor | None = None
+) -> dict[str, float]:
+    """Every metric of one prediction of a test set (with ``sigma``: its calibration on the
+    unobserved cells, as ``within_1sigma``, ``within_2sigma``, ``rms_sigma``)."""
     out = error_metrics(pred, ts.target, ts.mask, in_range)
+    if sigma is not None:
+        out.update(calibration(pred, sigma, ts.target, ts.mask <= 0))
     if ts.ground is not None and ts.positive:
         out["obstacle_iou"] = obstacle_iou(pred, ts.target, ts.ground, threshold)
     if ts.ground is not None and ts.negative:
@@ -341,9 +355,9 @@ def evaluate(
             }
             predictions = {}
             for name, f in predictors.items():
-                pred, dt = _run(f, ts, device)
+                pred, sigma, dt = _run(f, ts, device)
                 seconds[name] += dt
-                m = score(pred, ts, in_range, threshold)
+                m = score(pred, ts, in_range, threshold, sigma)
                 m["ms_per_map"] = 1000.0 * dt / len(ts)
                 entry["metrics"][name] = m
                 predictions[name] = pred
@@ -368,6 +382,9 @@ COLUMNS = (
     ("mae_in_range", "MAE in-range (m)"),
     ("obstacle_iou", "obstacle IoU"),
     ("pit_recall", "pit recall"),
+    ("within_1sigma", "unobs within 1 sigma"),
+    ("within_2sigma", "unobs within 2 sigma"),
+    ("rms_sigma", "RMS sigma unobs (m)"),
     ("ms_per_map", "ms/map"),
 )
 
@@ -377,7 +394,7 @@ def _fmt(key: str, value) -> str:
         return "n/a"
     if key == "ms_per_map":
         return f"{value:.1f}"
-    return f"{value:.3f}" if key in ("obstacle_iou", "pit_recall") else f"{value:.4f}"
+    return f"{value:.3f}" if key in ("obstacle_iou", "pit_recall", "within_1sigma", "within_2sigma") else f"{value:.4f}"
 
 
 def _rows(entry: dict) -> tuple[list[str], list[list[str]]]:

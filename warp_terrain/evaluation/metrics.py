@@ -25,6 +25,11 @@ augmentation are unchanged; ``tests/test_evaluation.py`` checks this).
 - **pit recall** (negative obstacles: pits, ditches): pit cells are those whose true height is
   more than ``threshold`` below the bare ground; a pit cell counts as found where the
   prediction is more than ``threshold / 2`` below the bare ground.
+
+A model with an uncertainty head also gives each cell a standard deviation ``sigma`` (m).
+:func:`calibration` says whether to trust it: the share of cells whose error lies within
+``sigma`` and within ``2 sigma`` (a calibrated Gaussian: 68.3 % and 95.4 %), and the RMS of
+``sigma`` next to the RMSE it should match.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ import torch
 
 __all__ = [
     "OBSTACLE_THRESHOLD",
+    "calibration",
     "error_metrics",
     "masked_mae",
     "masked_rmse",
@@ -136,3 +142,20 @@ def error_metrics(prediction: torch.Tensor, target: torch.Tensor, mask: torch.Te
         out[f"rmse_{name}"] = masked_rmse(prediction, target, sel)
         out[f"mae_{name}"] = masked_mae(prediction, target, sel)
     return out
+
+
+def calibration(prediction: torch.Tensor, sigma: torch.Tensor, target: torch.Tensor, cells: torch.Tensor) -> dict[str, float]:
+    """How well a predicted standard deviation ``sigma`` (m) describes the errors on ``cells``:
+    ``{"within_1sigma", "within_2sigma", "rms_sigma"}`` (shares of the cells whose
+    ``|prediction - target|`` is at most ``sigma`` / ``2 sigma``, and ``sqrt(mean sigma^2)``
+    in metres). NaN when no cell is selected."""
+    _check_same(prediction, target, sigma, "sigma")
+    errors = _selected_errors(prediction, target, cells)
+    if errors is None:
+        return {"within_1sigma": math.nan, "within_2sigma": math.nan, "rms_sigma": math.nan}
+    s = sigma.double()[cells.bool()]
+    return {
+        "within_1sigma": float((errors.abs() <= s).double().mean()),
+        "within_2sigma": float((errors.abs() <= 2.0 * s).double().mean()),
+        "rms_sigma": float(s.square().mean().sqrt()),
+    }

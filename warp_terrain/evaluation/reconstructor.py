@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from ..models import ModelConfig, build_generator
+from ..models.uncertainty import split_output, standard_deviation
 from ..pointclouds import check_points
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
@@ -69,10 +70,21 @@ class Reconstructor:
     def condition(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         return scan if self.model_config.in_channels == 1 else torch.cat([scan, mask], dim=1)
 
-    @torch.no_grad()
+    @property
+    def has_uncertainty(self) -> bool:
+        """Whether the model also predicts each cell's uncertainty (``model.uncertainty``)."""
+        return bool(self.model_config.uncertainty)
+
     def predict_maps(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """(B, 1, S, S) scan images and masks -> (B, 1, S, S) elevation maps."""
-        return self.generator(self.condition(scan.to(self.device), mask.to(self.device)))
+        return self.predict_maps_with_uncertainty(scan, mask)[0]
+
+    @torch.no_grad()
+    def predict_maps_with_uncertainty(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(elevation maps, standard deviations in metres or None)``, each (B, 1, S, S)."""
+        output = self.generator(self.condition(scan.to(self.device), mask.to(self.device)))
+        height, log_variance = split_output(output, self.has_uncertainty)
+        return height, None if log_variance is None else standard_deviation(log_variance)
 
     def reconstruct(self, points, map_size: int = 121, map_cell: float = 0.25) -> np.ndarray:
         """``(map_size, map_size)`` float32 elevation map (sensor frame) from an ``(N, 3)`` cloud.
@@ -84,6 +96,12 @@ class Reconstructor:
 
     def reconstruct_with_mask(self, points, map_size: int = 121, map_cell: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
         """The map and the observation mask it was filled from, projecting the cloud once."""
+        result = self.reconstruct_all(points, map_size, map_cell)
+        return result["height"], result["mask"]
+
+    def reconstruct_all(self, points, map_size: int = 121, map_cell: float = 0.25) -> dict[str, np.ndarray]:
+        """``{"height", "mask"}`` and, if the model has an uncertainty head, ``"uncertainty"``
+        (each cell's standard deviation of the height, metres): ``(map_size, map_size)`` arrays."""
         check_map(map_size, map_cell)
         if self.model_config.name == "paper" and map_size != 121:
             raise ValueError(f"map_size={map_size}: this model is the paper's net for 121x121 maps")
@@ -91,5 +109,8 @@ class Reconstructor:
         scan, mask = project_points(xyz, map_size=map_size, map_cell=map_cell, device=self.device)
         if mask.sum() == 0:
             raise ValueError(f"points: none of the {len(xyz)} points falls inside the {map_size}x{map_size} map of {map_cell} m cells")
-        height = self.predict_maps(scan, mask)[0, 0].float().cpu().numpy()
-        return height, mask[0, 0].cpu().numpy()
+        height, sigma = self.predict_maps_with_uncertainty(scan, mask)
+        out = {"height": height[0, 0].float().cpu().numpy(), "mask": mask[0, 0].cpu().numpy()}
+        if sigma is not None:
+            out["uncertainty"] = sigma[0, 0].float().cpu().numpy()
+        return out

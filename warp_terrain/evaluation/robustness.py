@@ -81,8 +81,8 @@ def evaluate_robustness(predictors: Mapping[str, Callable], size: int = 32, devi
         entry = {"setting": ts.terrain, "observed_share": float((ts.mask > 0).float().mean()), "metrics": {}}
         for name, f in predictors.items():
             t0 = time.perf_counter()
-            pred, _ = _run(f, ts, device)
-            entry["metrics"][name] = score(pred, ts, in_range)
+            pred, sigma, _ = _run(f, ts, device)
+            entry["metrics"][name] = score(pred, ts, in_range, sigma=sigma)
             say(f"{ts.terrain:<40} {name:<12} RMSE unobserved {entry['metrics'][name]['rmse_unobserved']:.4f} m ({time.perf_counter() - t0:.1f} s)")
         results["settings"].append(entry)
     return results

@@ -11,44 +11,68 @@ import numpy as np
 import torch
 
 from ..atomic import atomic_path
+from ..models.uncertainty import split_output
 
 
-def export_onnx(generator: torch.nn.Module, path: str | os.PathLike, in_channels: int, map_size: int = 121, opset: int = 17) -> Path:
+class SplitOutputs(torch.nn.Module):
+    """A generator whose outputs are named: ``height`` and, with an uncertainty head, the
+    clamped ``log_variance`` (log m^2) as a second output."""
+
+    def __init__(self, generator: torch.nn.Module, uncertainty: bool):
+        super().__init__()
+        self.generator = generator
+        self.uncertainty = uncertainty
+
+    @property
+    def output_names(self) -> list[str]:
+        return ["height", "log_variance"] if self.uncertainty else ["height"]
+
+    def forward(self, condition: torch.Tensor):
+        height, log_variance = split_output(self.generator(condition), self.uncertainty)
+        return (height, log_variance) if self.uncertainty else height
+
+
+def export_onnx(
+    generator: torch.nn.Module, path: str | os.PathLike, in_channels: int, map_size: int = 121, opset: int = 17, uncertainty: bool = False
+) -> Path:
     """Write ``generator`` as ONNX (input ``condition`` (B, C, S, S) with a dynamic batch,
-    output ``height`` (B, 1, S, S)), atomically."""
+    output ``height`` (B, 1, S, S), and ``log_variance`` (B, 1, S, S) with ``uncertainty``),
+    atomically."""
     path = Path(path)
     if path.suffix.lower() != ".onnx":
         raise ValueError(f"{str(path)!r}: the output must end in .onnx")
     if not path.parent.is_dir():
         raise ValueError(f"{str(path)!r}: the output folder {str(path.parent)!r} does not exist")
-    generator = generator.eval().cpu()
+    model = SplitOutputs(generator.eval().cpu(), uncertainty)
     example = torch.zeros(1, in_channels, map_size, map_size)
     with atomic_path(path) as tmp, warnings.catch_warnings():
         # the spatial size is fixed at export (the nets' padding is computed from it)
         warnings.simplefilter("ignore", torch.jit.TracerWarning)
         torch.onnx.export(
-            generator,
+            model,
             (example,),
             str(tmp),
             input_names=["condition"],
-            output_names=["height"],
-            dynamic_axes={"condition": {0: "batch"}, "height": {0: "batch"}},
+            output_names=model.output_names,
+            dynamic_axes={name: {0: "batch"} for name in ["condition", *model.output_names]},
             opset_version=opset,
             dynamo=False,
         )
     return path
 
 
-def check_onnx(generator: torch.nn.Module, path: str | os.PathLike, condition: torch.Tensor, repeats: int = 20) -> dict:
-    """Max |torch - onnxruntime| on ``condition`` and the median latency of each (ms)."""
+def check_onnx(generator: torch.nn.Module, path: str | os.PathLike, condition: torch.Tensor, repeats: int = 20, uncertainty: bool = False) -> dict:
+    """Max |torch - onnxruntime| over every output on ``condition`` and the median latency of
+    each (ms)."""
     import onnxruntime as ort
 
-    generator = generator.eval().cpu()
+    model = SplitOutputs(generator.eval().cpu(), uncertainty)
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     x = condition.float().cpu()
     with torch.no_grad():
-        expected = generator(x).numpy()
-    got = session.run(["height"], {"condition": x.numpy()})[0]
+        expected = model(x)
+    expected = [t.numpy() for t in (expected if uncertainty else (expected,))]
+    got = session.run(model.output_names, {"condition": x.numpy()})
 
     def median_ms(fn) -> float:
         fn()
@@ -60,6 +84,7 @@ def check_onnx(generator: torch.nn.Module, path: str | os.PathLike, condition: t
         return float(np.median(times) * 1e3)
 
     with torch.no_grad():
-        torch_ms = median_ms(lambda: generator(x))
-    onnx_ms = median_ms(lambda: session.run(["height"], {"condition": x.numpy()}))
-    return {"max_abs_diff": float(np.abs(expected - got).max()), "torch_ms": torch_ms, "onnxruntime_ms": onnx_ms, "batch": int(x.shape[0])}
+        torch_ms = median_ms(lambda: model(x))
+    onnx_ms = median_ms(lambda: session.run(model.output_names, {"condition": x.numpy()}))
+    diff = max(float(np.abs(e - g).max()) for e, g in zip(expected, got))
+    return {"max_abs_diff": diff, "torch_ms": torch_ms, "onnxruntime_ms": onnx_ms, "batch": int(x.shape[0]), "outputs": model.output_names}

@@ -25,7 +25,7 @@ class ModelConfig:
 
     name: str = "paper"  # generator: "paper" (Table 2's U-Net) | "unet" (pix2pix-style U-Net)
     in_channels: int = 1  # condition channels (e.g. 2 for scan + observation mask)
-    out_channels: int = 1  # predicted channels (1: a height map in metres)
+    out_channels: int = 1  # predicted image channels (1: a height map in metres; see `uncertainty`)
     ngf: int = 64  # generator filters in the first layer (64 = Table 2 exactly)
     ndf: int = 64  # discriminator filters in the first layer
     disc_layers: int = 3  # PatchGAN stride-2 layers (3 = the 70x70 PatchGAN)
@@ -40,6 +40,16 @@ class ModelConfig:
     beta2: float = 0.999
     residual: bool = False  # predict a correction to a push-pull fill (needs in_channels=2)
     unobserved_weight: float = 1.0  # L1 weight of unobserved cells relative to observed ones
+    # residual only: the net sees heights divided by each map's spread of observed heights (their
+    # standard deviation, at least this many metres) and its correction is scaled back, so one net
+    # serves reliefs of centimetres and of metres alike; 0 feeds it metres
+    height_scale_min: float = 0.0
+    # residual only: weight each map's loss by 1 / its observed-height spread (as the scaling above,
+    # at least height_scale_min metres), so a rough 4 m hillside does not drown a 5 cm meadow
+    relief_relative_loss: bool = False
+    # the generator also predicts each cell's log-variance of its height error (a second output
+    # channel, trained by the Gaussian NLL of the detached error: the height is learnt as without it)
+    uncertainty: bool = False
 
     def validate(self) -> ModelConfig:
         """Raise ValueError naming the first bad field; return self so calls can chain."""
@@ -63,6 +73,10 @@ class ModelConfig:
             raise bad("lambda_l1", "expected a number >= 0")
         if not _is_number(self.unobserved_weight) or not self.unobserved_weight > 0:
             raise bad("unobserved_weight", "expected a number > 0")
+        if not _is_number(self.height_scale_min) or not 0.0 <= self.height_scale_min < float("inf"):
+            raise bad("height_scale_min", "expected a finite number >= 0 (metres; 0 disables the scaling)")
+        if self.relief_relative_loss and not (self.residual and self.height_scale_min > 0):
+            raise bad("relief_relative_loss", "needs residual=true and height_scale_min > 0 (the spread's floor)")
         if self.residual and self.in_channels != 2:
             raise bad("residual", "the fill needs the mask: set in_channels=2 (scan and mask)")
         for field in ("dropout", "beta1", "beta2"):

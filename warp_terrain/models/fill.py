@@ -10,6 +10,11 @@ interpolation ops: differentiable, batched on the device, and exportable to ONNX
 input is the fill and the mask (heights relative to the mean observed height, so the net does
 not have to learn where the sensor is mounted), and its output is ``fill + correction``. Before
 training it already is the classical fill; training only has to learn what the fill gets wrong.
+With ``height_scale_min > 0`` the heights it sees are also divided by the map's spread of
+observed heights (:func:`observed_spread`) and its correction multiplied by it: the net then
+works in units of the map's own relief, so a 5 cm meadow and a 4 m hillside look alike to it.
+A second output channel (``model.uncertainty``: a log-variance) is passed on, shifted by
+``2 log s`` so that it too is in metres squared.
 """
 
 from __future__ import annotations
@@ -42,21 +47,51 @@ def mean_observed(height: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -
     return (height * mask).sum(dim=(2, 3), keepdim=True) / mask.sum(dim=(2, 3), keepdim=True).clamp_min(eps)
 
 
-class FillResidualGenerator(nn.Module):
-    """condition (B, 2, H, W) = (scan, mask) -> push-pull fill + net(fill - mean, mask)."""
+def observed_spread(height: torch.Tensor, mask: torch.Tensor, reference: torch.Tensor, floor: float) -> torch.Tensor:
+    """(B, 1, 1, 1) standard deviation of each map's observed heights about ``reference``,
+    at least ``floor`` (also for maps with no observed cell)."""
+    var = (((height - reference) ** 2) * mask).sum(dim=(2, 3), keepdim=True) / mask.sum(dim=(2, 3), keepdim=True).clamp_min(1.0)
+    return var.sqrt().clamp_min(floor)
 
-    def __init__(self, net: nn.Module):
+
+class FillResidualGenerator(nn.Module):
+    """condition (B, 2, H, W) = (scan, mask) -> push-pull fill + s * net((fill - mean) / s, mask),
+    where s is 1, or the map's observed-height spread (>= ``height_scale_min`` metres) if > 0.
+    Output channels after the first (a log-variance) come back as ``net + 2 log s``."""
+
+    def __init__(self, net: nn.Module, height_scale_min: float = 0.0):
         super().__init__()
         self.net = net
+        self.height_scale_min = float(height_scale_min)
 
     def forward(self, condition: torch.Tensor) -> torch.Tensor:
         scan, mask = condition[:, :1], condition[:, 1:2]
         fill = push_pull_fill(scan, mask)
         reference = mean_observed(scan, mask)
-        return fill + self.net(torch.cat([fill - reference, mask], dim=1))
+        if self.height_scale_min <= 0:
+            out = self.net(torch.cat([fill - reference, mask], dim=1))
+            height, rest = fill + out[:, :1], out[:, 1:]
+        else:
+            scale = observed_spread(scan, mask, reference, self.height_scale_min)
+            out = self.net(torch.cat([(fill - reference) / scale, mask], dim=1))
+            height, rest = fill + scale * out[:, :1], out[:, 1:] + 2.0 * torch.log(scale)
+        return height if out.shape[1] == 1 else torch.cat([height, rest], dim=1)
 
 
 def unobserved_weight_map(mask: torch.Tensor, unobserved_weight: float) -> torch.Tensor:
     """Per-cell loss weights: 1 on observed cells, ``unobserved_weight`` elsewhere, mean 1."""
     weight = mask + unobserved_weight * (1.0 - mask)
     return weight / weight.mean(dim=(1, 2, 3), keepdim=True)
+
+
+def loss_weight_map(scan: torch.Tensor, mask: torch.Tensor, unobserved_weight: float = 1.0, relief_floor: float = 0.0) -> torch.Tensor | None:
+    """Per-cell weights of the L1 (and NLL) terms, or None for the plain mean: unobserved cells
+    weighted by ``unobserved_weight`` (:func:`unobserved_weight_map`), and with
+    ``relief_floor > 0`` each map by ``1 / observed_spread`` (at least ``relief_floor``),
+    normalised so the batch's mean weight is 1."""
+    weight = unobserved_weight_map(mask, unobserved_weight) if unobserved_weight != 1.0 else None
+    if relief_floor <= 0:
+        return weight
+    inverse = 1.0 / observed_spread(scan, mask, mean_observed(scan, mask), relief_floor)
+    inverse = inverse / inverse.mean()
+    return inverse.expand_as(mask) if weight is None else weight * inverse

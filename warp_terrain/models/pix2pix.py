@@ -13,6 +13,8 @@ Step (pix2pix): D on (condition, prediction.detach()) as fake and (condition, ta
 loss_D = (fake + real) / 2; then G with D frozen: loss_G = GAN(D(condition, prediction), real)
 + lambda_l1 * L1(prediction, target). The L1 term may be weighted per pixel (`weight` in
 `set_input`), e.g. to weight unobserved cells; without a weight it is the plain mean.
+With `uncertainty` the generator's second channel is a log-variance, trained by the Gaussian
+NLL of the detached height error (`models.uncertainty`), added to loss_G with the same weights.
 """
 
 from __future__ import annotations
@@ -27,17 +29,20 @@ from .fill import FillResidualGenerator
 from .losses import GANLoss
 from .paper_unet import PaperUNet
 from .patchgan import PatchDiscriminator
+from .uncertainty import gaussian_nll, split_output
 from .unet import UNet
 
 
 def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
-    """`cfg.name`: "paper" -> PaperUNet (Table 2), "unet" -> UNet (pix2pix-style)."""
+    """`cfg.name`: "paper" -> PaperUNet (Table 2), "unet" -> UNet (pix2pix-style); with
+    `cfg.uncertainty` it has one more output channel (the log-variance)."""
     cfg = ModelConfig.coerce(cfg).validate()
+    channels = cfg.out_channels + int(cfg.uncertainty)
     if cfg.name == "paper":
-        net = PaperUNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.norm, cfg.dropout)
+        net = PaperUNet(cfg.in_channels, channels, cfg.ngf, cfg.norm, cfg.dropout)
     else:
-        net = UNet(cfg.in_channels, cfg.out_channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
-    return FillResidualGenerator(net) if cfg.residual else net
+        net = UNet(cfg.in_channels, channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
+    return FillResidualGenerator(net, cfg.height_scale_min) if cfg.residual else net
 
 
 def build_discriminator(cfg: ModelConfig | Mapping) -> nn.Module:
@@ -54,7 +59,7 @@ class Pix2PixModel:
     """
 
     model_names = ("netG", "netD")
-    loss_names = ("discriminator", "generator_gan", "l1")
+    loss_names = ("discriminator", "generator_gan", "l1")  # + "nll" with uncertainty
     visual_names = ("condition", "prediction", "target")
 
     def __init__(self, cfg: ModelConfig | Mapping):
@@ -73,6 +78,7 @@ class Pix2PixModel:
         self.target: torch.Tensor | None = None
         self.weight: torch.Tensor | None = None
         self.prediction: torch.Tensor | None = None
+        self.log_variance: torch.Tensor | None = None  # with cfg.uncertainty
         self.loss_G: torch.Tensor | None = None  # total generator loss of the last step
         self.losses: dict[str, torch.Tensor] = {}  # detached, on the model's device
 
@@ -91,7 +97,7 @@ class Pix2PixModel:
         self.condition, self.target, self.weight = condition, target, weight
 
     def forward(self) -> torch.Tensor:
-        self.prediction = self.netG(self.condition)
+        self.prediction, self.log_variance = split_output(self.netG(self.condition), self.cfg.uncertainty)
         return self.prediction
 
     # -- losses -------------------------------------------------------------------------
@@ -114,7 +120,7 @@ class Pix2PixModel:
         loss_D.backward()
         return loss_D
 
-    def backward_G(self) -> tuple[torch.Tensor, torch.Tensor]:
+    def backward_G(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         if self.adversarial:
             fake = torch.cat([self.condition, self.prediction], dim=1)
             loss_gan = self.criterion_gan(self.netD(fake), True)
@@ -122,13 +128,18 @@ class Pix2PixModel:
             loss_gan = torch.zeros((), device=self.prediction.device)
         loss_l1 = self.l1_loss(self.prediction, self.target, self.weight)
         self.loss_G = loss_gan + self.cfg.lambda_l1 * loss_l1
+        loss_nll = None
+        if self.log_variance is not None:
+            loss_nll = gaussian_nll(self.log_variance, self.prediction - self.target, self.weight)
+            self.loss_G = self.loss_G + loss_nll
         self.loss_G.backward()
-        return loss_gan, loss_l1
+        return loss_gan, loss_l1, loss_nll
 
     def optimize_parameters(self) -> dict[str, torch.Tensor]:
         """One pix2pix step (D then G). Returns detached 0-d tensors (no host sync):
         "discriminator" = loss_D, "generator_gan" = G's adversarial term, "l1" = the L1 term
-        before the lambda_l1 factor (metres for height targets). `loss_values()` -> floats."""
+        before the lambda_l1 factor (metres for height targets), and with uncertainty "nll" =
+        the log-variance's Gaussian NLL. `loss_values()` -> floats."""
         self.forward()
         _set_requires_grad(self.netD, True)
         if self.adversarial:
@@ -141,7 +152,7 @@ class Pix2PixModel:
 
         _set_requires_grad(self.netD, False)  # D is fixed while G trains
         self.optimizer_G.zero_grad(set_to_none=True)
-        loss_gan, loss_l1 = self.backward_G()
+        loss_gan, loss_l1, loss_nll = self.backward_G()
         self.optimizer_G.step()
         _set_requires_grad(self.netD, True)
 
@@ -150,6 +161,8 @@ class Pix2PixModel:
             "generator_gan": loss_gan.detach(),
             "l1": loss_l1.detach(),
         }
+        if loss_nll is not None:
+            self.losses["nll"] = loss_nll.detach()
         return dict(self.losses)
 
     # -- data parallel ------------------------------------------------------------------------
@@ -197,14 +210,18 @@ class Pix2PixModel:
         return {"condition": self.condition, "prediction": prediction, "target": self.target}
 
     def predict(self, condition: torch.Tensor) -> torch.Tensor:
-        """The generator in eval mode (no dropout, running batch-norm statistics), no grad.
-        The previous train/eval mode is restored afterwards."""
+        """The height (B, 1, H, W) from the generator in eval mode (no dropout, running
+        batch-norm statistics), no grad. The previous train/eval mode is restored afterwards."""
+        return self.predict_with_uncertainty(condition)[0]
+
+    def predict_with_uncertainty(self, condition: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(height, log-variance or None)`` as `predict`."""
         generator = self.generator
         was_training = generator.training
         generator.eval()
         try:
             with torch.no_grad():
-                return generator(condition)
+                return split_output(generator(condition), self.cfg.uncertainty)
         finally:
             generator.train(was_training)
 

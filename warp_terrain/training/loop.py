@@ -22,9 +22,10 @@ from tqdm.auto import tqdm
 
 from ..atomic import atomic_open, atomic_path
 from ..evaluation.baselines import nearest_fill
-from ..evaluation.metrics import masked_rmse
+from ..evaluation.metrics import calibration, masked_rmse
 from ..models import build_model
-from ..models.fill import unobserved_weight_map
+from ..models.fill import loss_weight_map
+from ..models.uncertainty import standard_deviation
 from ..sim.batch import terrain_size
 from ..sim.device import resolve_device
 from ..sim.memory import check_batch_fits
@@ -54,8 +55,11 @@ def lr_factor(step: int, steps: int, decay_from: float) -> float:
     return max(0.0, 1.0 - (step - start) / max(steps - start, 1.0))
 
 
-def predict_in_chunks(model, condition: torch.Tensor, chunk: int = 16) -> torch.Tensor:
-    return torch.cat([model.predict(condition[i : i + chunk]) for i in range(0, condition.shape[0], chunk)])
+def predict_in_chunks(model, condition: torch.Tensor, chunk: int = 16) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """``(heights, log-variances or None)`` of ``condition``, ``chunk`` maps at a time."""
+    outs = [model.predict_with_uncertainty(condition[i : i + chunk]) for i in range(0, condition.shape[0], chunk)]
+    log_variance = None if outs[0][1] is None else torch.cat([v for _, v in outs])
+    return torch.cat([h for h, _ in outs]), log_variance
 
 
 def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
@@ -107,8 +111,12 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     def validate(step: int) -> tuple[float, torch.Tensor | None]:
         if not ranks.main:
             return math.nan, None
-        prediction = predict_in_chunks(model, val_condition)
+        prediction, log_variance = predict_in_chunks(model, val_condition)
         rmse = masked_rmse(prediction, val["target"], unobserved)
+        if log_variance is not None:
+            fit = calibration(prediction, standard_deviation(log_variance), val["target"], unobserved)
+            for key, value in fit.items():
+                writer.add_scalar(f"val/uncertainty_{key}_unobserved", value, step)
         writer.add_scalar("val/rmse_unobserved", rmse, step)
         writer.add_scalar("val/rmse_observed", masked_rmse(prediction, val["target"], ~unobserved), step)
         writer.add_scalar("val/rmse_all", masked_rmse(prediction, val["target"], torch.ones_like(unobserved)), step)
@@ -142,7 +150,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
             for g in opt.param_groups:
                 g["lr"] = base_lrs[id(opt)] * factor
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items() if k != "step"}
-        weight = unobserved_weight_map(batch["mask"], cfg.model.unobserved_weight) if cfg.model.unobserved_weight != 1.0 else None
+        relief_floor = cfg.model.height_scale_min if cfg.model.relief_relative_loss else 0.0
+        weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, relief_floor)
         model.set_input(model_input(batch, cfg.model.in_channels), batch["target"], weight)
         model.optimize_parameters()
         t2 = time.perf_counter()
@@ -169,7 +178,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
                 save(BEST, done)
         if ranks.main and (done % tc.image_every == 0 or done == tc.steps):
             if last_prediction is None:
-                last_prediction = predict_in_chunks(model, val_condition)
+                last_prediction = predict_in_chunks(model, val_condition)[0]
                 model.train()
             grid = map_grid(val["scan"], val["mask"], last_prediction, val["target"])
             writer.add_image("val/scan_mask_prediction_target_error", grid, done)

@@ -267,8 +267,8 @@ def test_model_predictor_and_checkpoint(tmp_path):
     torch.testing.assert_close(out, expected)
     path = tmp_path / "best.pt"
     torch.save({"model": model.state_dict(), "step": 7, "config": {"model": {"in_channels": 2, "name": "unet"}}}, path)
-    predictor, info = load_model_predictor(path, device="cpu")
-    assert info["in_channels"] == 2 and info["step"] == 7
+    predictor, info = load_model_predictor(path, device="cpu", tta=False)
+    assert info["in_channels"] == 2 and info["step"] == 7 and not info["tta"]
     torch.testing.assert_close(predictor(scan, mask), expected)
     with pytest.raises(ValueError, match="does not exist"):
         load_model_predictor(tmp_path / "missing.pt")

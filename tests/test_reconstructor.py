@@ -16,12 +16,12 @@ from warp_terrain.pointclouds import apply_transform, read_point_cloud, transfor
 SMALL = ModelConfig(name="unet", in_channels=2, residual=True, ngf=8, ndf=8, unet_depth=4)
 
 
-def _untrained(tmp_path) -> Reconstructor:
+def _untrained(tmp_path, tta: bool = True) -> Reconstructor:
     torch.manual_seed(0)
     rec = Reconstructor(build_generator(SMALL), SMALL, {"note": "test"}, device="cpu")
     path = tmp_path / "rec.pt"
     rec.save(path)
-    return Reconstructor.load(path, device="cpu")
+    return Reconstructor.load(path, device="cpu", tta=tta)
 
 
 def _scan(seed=0) -> np.ndarray:
@@ -47,7 +47,7 @@ def test_save_load_round_trip_with_weights_only(tmp_path, monkeypatch):
 def test_reconstruct_keeps_the_fill_structure_of_an_untrained_residual_net(tmp_path):
     """The residual model is the push-pull fill plus a correction: zero the net's last layer
     and reconstruct() must return exactly the fill of the projected scan."""
-    rec = _untrained(tmp_path)
+    rec = _untrained(tmp_path, tta=False)
     last = [m for m in rec.generator.modules() if isinstance(m, torch.nn.ConvTranspose2d)][-1]
     torch.nn.init.zeros_(last.weight)
     torch.nn.init.zeros_(last.bias)
@@ -56,6 +56,27 @@ def test_reconstruct_keeps_the_fill_structure_of_an_untrained_residual_net(tmp_p
     assert height.shape == (121, 121) and height.dtype == np.float32
     scan, mask = wt.project_points(points)
     np.testing.assert_allclose(height, push_pull_fill(scan, mask)[0, 0].numpy(), atol=1e-5)
+
+
+class _ScanPlusRamp(torch.nn.Module):
+    """height = scan + (column - centre): the ramp turns with each orientation, so the average
+    of the 8 orientations, mapped back, cancels it; log-variance channel: a constant 2 log 0.3."""
+
+    def forward(self, condition):
+        scan = condition[:, :1]
+        ramp = torch.arange(scan.shape[-1], dtype=scan.dtype) - (scan.shape[-1] - 1) / 2
+        return torch.cat([scan + ramp, torch.full_like(scan, 2 * np.log(0.3))], dim=1)
+
+
+def test_test_time_augmentation_averages_the_eight_orientations():
+    cfg = ModelConfig(name="unet", in_channels=2, uncertainty=True)
+    scan, mask = torch.randn(2, 1, 121, 121), torch.ones(2, 1, 121, 121)
+    plain = Reconstructor(_ScanPlusRamp(), cfg, device="cpu", tta=False).predict_maps_with_uncertainty(scan, mask)
+    ramp = torch.arange(121.0) - 60.0
+    torch.testing.assert_close(plain[0], scan + ramp)
+    height, sigma = Reconstructor(_ScanPlusRamp(), cfg, device="cpu").predict_maps_with_uncertainty(scan, mask)
+    torch.testing.assert_close(height, scan, atol=1e-5, rtol=0)
+    torch.testing.assert_close(sigma, torch.full_like(scan, 0.3))
 
 
 @pytest.mark.parametrize(

@@ -296,6 +296,7 @@ def add_evaluate(sub) -> None:
                                    "obstacle IoU, pit recall and the time per map.")
     p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/best.pt) or Reconstructor file: evaluate its model beside the baselines")
     p.add_argument("--pretrained", action="store_true", help="evaluate the model shipped in the package beside the baselines")
+    _add_tta(p)
     p.add_argument("--robustness", action="store_true",
                    help="instead, score on settings outside the training ranges and on real DEM terrain (matplotlib's sample DEM)")
     p.add_argument("--settings", default="octave3,octave5,flat_cylinders,negative_obstacles", metavar="NAMES",
@@ -330,7 +331,7 @@ def cmd_evaluate(args) -> int:
         raise ValueError(f"--markdown {args.markdown!r}: the folder does not exist")
     model_info = None
     if args.checkpoint is not None or args.pretrained:
-        predictor, model_info = load_model_predictor(args.checkpoint, device=args.device)
+        predictor, model_info = load_model_predictor(args.checkpoint, device=args.device, tta=args.tta)
         predictors["model"] = predictor
     if not predictors:
         raise ValueError("nothing to evaluate: --baselines none needs --checkpoint")
@@ -367,6 +368,11 @@ def _add_model(p: argparse.ArgumentParser) -> None:
                    help="a Reconstructor file or training checkpoint (default: the model shipped in the package)")
 
 
+def _add_tta(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-tta", dest="tta", action="store_false",
+                   help="one prediction per map instead of the average over its 8 quarter turns and mirror images")
+
+
 def add_reconstruct(sub) -> None:
     p = sub.add_parser("reconstruct", help="elevation map from a point-cloud file (.npy .ply .pcd .las .laz)",
                        description="Read a point cloud, move it into the sensor frame, project it into a map and fill "
@@ -379,6 +385,7 @@ def add_reconstruct(sub) -> None:
     p.add_argument("--transform", default=None, metavar="VALUES",
                    help="points -> sensor frame: 16 comma-separated values (a 4x4 matrix, row-major) or 6 (x,y,z,roll,pitch,yaw in m and degrees)")
     _add_model(p)
+    _add_tta(p)
     _add_device(p)
     p.set_defaults(func=cmd_reconstruct)
 
@@ -402,7 +409,7 @@ def cmd_reconstruct(args) -> int:
     points = read_point_cloud(source)
     if matrix is not None:
         points = apply_transform(points, matrix)
-    rec = Reconstructor.load(args.model, device=args.device)
+    rec = Reconstructor.load(args.model, device=args.device, tta=args.tta)
     maps = rec.reconstruct_all(points, args.map_size, args.map_cell)
     with atomic_open(out) as f:
         np.savez_compressed(f, **maps, map_cell=np.float32(args.map_cell))

@@ -191,12 +191,13 @@ def model_predictor(model, in_channels: int, chunk: int = 16) -> Predictor:
     return predict
 
 
-def load_model_predictor(path=None, device=None, chunk: int = 16) -> tuple[Predictor, dict]:
+def load_model_predictor(path=None, device=None, chunk: int = 16, tta: bool = True) -> tuple[Predictor, dict]:
     """A predictor from a training checkpoint (``checkpoints/best.pt``), a ``Reconstructor``
-    file, or (``path=None``) the model shipped in the package, and a short description of it."""
+    file, or (``path=None``) the model shipped in the package, and a short description of it.
+    ``tta``: average over the 8 orientations of each map (``Reconstructor``)."""
     from .reconstructor import Reconstructor, pretrained_path
 
-    rec = Reconstructor.load(path, device=device)
+    rec = Reconstructor.load(path, device=device, tta=tta)
 
     def predict(scan: torch.Tensor, mask: torch.Tensor):
         outs = [rec.predict_maps_with_uncertainty(scan[i : i + chunk], mask[i : i + chunk]) for i in range(0, scan.shape[0], chunk)]
@@ -212,6 +213,7 @@ def load_model_predictor(path=None, device=None, chunk: int = 16) -> tuple[Predi
         "generator": rec.model_config.name,
         "residual": rec.model_config.residual,
         "uncertainty": rec.has_uncertainty,
+        "tta": rec.tta,
     }
     return predict, info
 

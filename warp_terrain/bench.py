@@ -795,7 +795,8 @@ def bench_infer(device=None, quick: bool = False, repeats: int | None = None) ->
 
     ``end_to_end``: batch 1 is ``reconstruct(points)`` on one scan (its returns only: the NaN
     rows of no-return rays dropped before the clock); batch 4 is ``project_points`` of 4 scans
-    at once plus one ``predict_maps`` call. ``network``: the generator alone on the conditions
+    at once plus one ``predict_maps`` call (both with the Reconstructor's default test-time
+    augmentation: 8 network passes per map). ``network``: the generator alone on the conditions
     of those scans, torch (no grad) and ONNX Runtime (exported with ``export_onnx``). Each run
     once with torch's thread count (ONNX Runtime's intra-op threads the same) and, if that is
     more than one, once with one thread (``quick``: one thread only).
@@ -849,14 +850,14 @@ def bench_infer(device=None, quick: bool = False, repeats: int | None = None) ->
 
                 timing = _timing(_time(run, "cpu", repeats))
                 with torch.no_grad():
-                    expected = rec.generator(condition[:batch]).float().cpu().numpy()
+                    expected = rec.generator(condition[:batch])[:, :1].float().cpu().numpy()  # the height channel
                 entry = network[str(batch)]
                 entry["onnxruntime"] = {**timing, "median_ms": timing["median_s"] * 1e3,
                                         "speedup_over_torch": entry["torch"]["median_s"] / timing["median_s"]}
                 entry["max_abs_diff_m"] = float(np.abs(expected - out["onnx"]).max())
         runs.append({"threads": threads, "end_to_end": end_to_end, "network": network})
     params = {"model": rec.model_config.name, "ngf": rec.model_config.ngf, "in_channels": rec.model_config.in_channels,
-              "residual": rec.model_config.residual, "lidar": sim.lidar.name, "points_in_cloud": int(cloud.shape[0]),
+              "residual": rec.model_config.residual, "tta": rec.tta, "lidar": sim.lidar.name, "points_in_cloud": int(cloud.shape[0]),
               "rays_per_scan": sim.lidar.num_rays, "map_size": size, "map_cell_m": cell, "batches": list(batches),
               "threads": threads_list, "seed": SEED}
     return _result("infer", device, params, runs=runs, onnxruntime=onnx,

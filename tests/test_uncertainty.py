@@ -168,3 +168,54 @@ def test_reconstructor_writes_the_uncertainty_and_onnx_exports_it(tmp_path):
     path = export_onnx(rec.generator, tmp_path / "g.onnx", 2, uncertainty=True)
     report = check_onnx(rec.generator, path, torch.cat([b.scan, b.mask], 1), repeats=1, uncertainty=True)
     assert report["outputs"] == ["height", "log_variance"] and report["max_abs_diff"] < 1e-4
+
+
+class _ScanWithConstantSigma(torch.nn.Module):
+    """height = the scan itself; log-variance 2 log 0.2 everywhere (sigma 0.2 m)."""
+
+    def forward(self, condition):
+        scan = condition[:, :1]
+        return torch.cat([scan, torch.full_like(scan, 2 * math.log(0.2))], dim=1)
+
+
+def test_sigma_scale_is_the_rms_error_over_sigma_on_validation_pairs():
+    from warp_terrain.evaluation.calibrate import CALIBRATION_FIRST_CHUNK, fit_sigma_scale
+    from warp_terrain.sim import SimConfig
+    from warp_terrain.training.stream import make_pair, validation_seed
+
+    cfg = ModelConfig(name="unet", in_channels=2, uncertainty=True)
+    rec = Reconstructor(_ScanWithConstantSigma(), cfg, {"sigma_scale": 7.0}, device="cpu", tta=False)
+    k = fit_sigma_scale(rec, SimConfig(), size=20)
+    errors = []
+    for i, n in ((0, 16), (1, 4)):
+        pair = make_pair(SimConfig(), n, validation_seed(CALIBRATION_FIRST_CHUNK + i), "cpu")
+        errors.append((pair["scan"] - pair["target"])[pair["mask"] <= 0].double())
+    rmse = torch.cat(errors).square().mean().sqrt().item()
+    assert k == pytest.approx(rmse / 0.2, rel=1e-6)
+    assert rec.meta["sigma_scale"] == 7.0  # the stored factor is left as it was
+    rec.meta["sigma_scale"] = k
+    assert rec.predict_maps_with_uncertainty(*_maps(size=9))[1].flatten()[0].item() == pytest.approx(0.2 * k)
+    with pytest.raises(ValueError, match="no uncertainty head"):
+        fit_sigma_scale(Reconstructor(_ScanWithConstantSigma(), ModelConfig(in_channels=2), device="cpu"), SimConfig())
+
+
+def test_package_model_keeps_the_generator_and_calibrates_its_uncertainty(tmp_path, capsys):
+    import json
+
+    from omegaconf import OmegaConf
+
+    from warp_terrain.cli import main
+    from warp_terrain.config import RunConfig
+
+    torch.manual_seed(0)
+    model = build_model(SCALED)
+    run = OmegaConf.to_container(OmegaConf.structured(RunConfig(model=SCALED)))
+    checkpoint, out = tmp_path / "latest.pt", tmp_path / "model.pt"
+    torch.save({"model": model.state_dict(), "step": 3, "config": run}, checkpoint)
+    assert main(["package-model", str(checkpoint), "--out", str(out), "--calibrate", "16", "--device", "cpu"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    rec = Reconstructor.load(out, device="cpu")
+    assert report["step"] == rec.meta["step"] == 3 and report["sigma_scale"] == pytest.approx(rec.sigma_scale) and rec.sigma_scale > 0
+    assert out.stat().st_size < checkpoint.stat().st_size / 2  # the generator alone, in fp16
+    assert main(["package-model", str(checkpoint), "--out", str(tmp_path / "raw.pt"), "--calibrate", "0"]) == 0
+    assert Reconstructor.load(tmp_path / "raw.pt", device="cpu").sigma_scale == 1.0

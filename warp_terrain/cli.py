@@ -278,6 +278,16 @@ def _baseline_names(value: str) -> list[str]:
     return names
 
 
+def _non_negative_int(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid count {value!r}: expected an integer >= 0") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"invalid count {value!r}: expected an integer >= 0")
+    return n
+
+
 def _positive_int(value: str) -> int:
     try:
         n = int(value)
@@ -456,6 +466,10 @@ def add_package_model(sub) -> None:
                        description="Keep the generator only, in fp16, with its model config and the run config it was trained with.")
     p.add_argument("checkpoint", help="a training checkpoint (checkpoints/best.pt)")
     p.add_argument("--out", required=True, metavar="OUT.pt")
+    p.add_argument("--calibrate", type=_non_negative_int, default=256, metavar="N",
+                   help="fit the uncertainty's scale on N validation pairs of the run's own data settings "
+                        "(default 256; 0 skips; models without an uncertainty head skip it)")
+    _add_device(p)
     p.set_defaults(func=cmd_package_model)
 
 
@@ -467,9 +481,19 @@ def cmd_package_model(args) -> int:
     out = Path(args.out)
     if not out.resolve().parent.is_dir():
         raise ValueError(f"--out {str(out)!r}: the folder does not exist")
-    rec = Reconstructor.load(args.checkpoint, device="cpu")
+    rec = Reconstructor.load(args.checkpoint, device=args.device)
+    if args.calibrate and rec.has_uncertainty:
+        from .evaluation.calibrate import fit_sigma_scale
+        from .sim.batch import as_sim_config
+
+        run = rec.meta.get("config") or {}
+        if not all(key in run for key in ("terrain", "lidar", "data")):
+            raise ValueError(f"{args.checkpoint!r}: holds no run config to calibrate on (use --calibrate 0)")
+        sim = as_sim_config({key: run[key] for key in ("terrain", "lidar", "data")})
+        rec.meta["sigma_scale"] = fit_sigma_scale(rec, sim, args.calibrate, device=rec.device)
     rec.save(out)
-    print(json.dumps({"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step")}))
+    print(json.dumps({"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"),
+                      "sigma_scale": rec.meta.get("sigma_scale")}))
     return 0
 
 

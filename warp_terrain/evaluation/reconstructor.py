@@ -50,6 +50,9 @@ class Reconstructor:
     eight predictions are averaged, mapped back. Eight times the network's work (a few ms per
     map on a CPU) for a few per cent lower error (README, "Evaluation"). The uncertainty is then
     the members' RMS sigma: an average errs less than its members, so it errs on the safe side.
+
+    The uncertainty is multiplied by ``meta["sigma_scale"]`` (1 if absent): a factor fitted on
+    validation pairs when the model is packaged (:func:`~warp_terrain.evaluation.calibrate.fit_sigma_scale`).
     """
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True):
@@ -93,6 +96,11 @@ class Reconstructor:
         return scan if self.model_config.in_channels == 1 else torch.cat([scan, mask], dim=1)
 
     @property
+    def sigma_scale(self) -> float:
+        """The calibration factor of the uncertainty (``meta["sigma_scale"]``, default 1)."""
+        return float(self.meta.get("sigma_scale", 1.0))
+
+    @property
     def has_uncertainty(self) -> bool:
         """Whether the model also predicts each cell's uncertainty (``model.uncertainty``)."""
         return bool(self.model_config.uncertainty)
@@ -107,7 +115,7 @@ class Reconstructor:
         scan, mask = scan.to(self.device), mask.to(self.device)
         if not self.tta:
             height, log_variance = split_output(self.generator(self.condition(scan, mask)), self.has_uncertainty)
-            return height, None if log_variance is None else standard_deviation(log_variance)
+            return height, None if log_variance is None else self.sigma_scale * standard_deviation(log_variance)
         heights, variances = [], []
         for turns, mirror in DIHEDRAL:
             output = self.generator(self.condition(_orient(scan, turns, mirror), _orient(mask, turns, mirror)))
@@ -116,7 +124,7 @@ class Reconstructor:
             if log_variance is not None:
                 variances.append(log_variance.exp())
         height = torch.stack(heights).mean(dim=0)
-        return height, torch.stack(variances).mean(dim=0).sqrt() if variances else None
+        return height, self.sigma_scale * torch.stack(variances).mean(dim=0).sqrt() if variances else None
 
     def reconstruct(self, points, map_size: int = 121, map_cell: float = 0.25) -> np.ndarray:
         """``(map_size, map_size)`` float32 elevation map (sensor frame) from an ``(N, 3)`` cloud.

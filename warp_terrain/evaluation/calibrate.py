@@ -1,0 +1,48 @@
+"""Calibrating a model's uncertainty on validation pairs (sigma scaling).
+
+The log-variance head learns the squared error of the *training-mode* prediction (dropout on,
+batch statistics), on the training distribution. The eval-mode prediction, averaged over 8
+orientations, errs less, so its raw sigma is too large. One factor ``k`` fixes the scale:
+``k^2 = mean(e^2 / sigma^2)`` over the unobserved cells of validation pairs, the factor that
+minimises the Gaussian negative log-likelihood of those errors (Laves et al., 2020, "Well-
+calibrated regression uncertainty in medical imaging with deep learning"). The pairs come from
+validation seeds beyond those training validates on, so neither training nor the test sets
+(``evaluation.evaluate``) see them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..sim import SimConfig
+from ..training.stream import make_pair, validation_seed
+
+#: First validation chunk used for calibration (training validates on chunks 0, 1, ...).
+CALIBRATION_FIRST_CHUNK = 4096
+
+
+def fit_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str = "cpu", chunk: int = 16) -> float:
+    """The factor ``k`` that makes ``k * sigma`` the RMS error of ``rec`` on the unobserved cells
+    of ``size`` validation pairs of ``sim`` (with ``rec``'s own TTA setting, from ``sigma_scale = 1``)."""
+    if not rec.has_uncertainty:
+        raise ValueError("this model has no uncertainty head (model.uncertainty=false): nothing to calibrate")
+    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+        raise ValueError(f"size={size!r}: must be an integer >= 1")
+    saved = rec.meta.pop("sigma_scale", None)
+    try:
+        total, cells = 0.0, 0
+        for i in range(0, size, chunk):
+            pair = make_pair(sim, min(chunk, size - i), validation_seed(CALIBRATION_FIRST_CHUNK + i // chunk), device)
+            height, sigma = rec.predict_maps_with_uncertainty(pair["scan"], pair["mask"])
+            unobserved = pair["mask"].to(height.device) <= 0
+            ratio = (height.double() - pair["target"].to(height.device).double()) / sigma.double()
+            total += float(ratio[unobserved].square().sum())
+            cells += int(unobserved.sum())
+    finally:
+        if saved is not None:
+            rec.meta["sigma_scale"] = saved
+    if cells == 0:
+        raise ValueError("no unobserved cell in the calibration pairs")
+    return math.sqrt(total / cells)

@@ -10,6 +10,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from warp_terrain.config import register_configs, to_run_config
+from warp_terrain.evaluation.reconstructor import Reconstructor
 from warp_terrain.training import batch_seed, train, training_batches
 from warp_terrain.training.checkpoint import load_checkpoint
 from warp_terrain.training.stream import VALIDATION_SEED_BASE
@@ -159,7 +160,6 @@ def test_the_scaled_residual_model_with_uncertainty_trains_and_logs_its_calibrat
     for tag in ("loss/nll", "val/uncertainty_within_1sigma_unobserved", "val/uncertainty_within_2sigma_unobserved",
                 "val/uncertainty_rms_sigma_unobserved"):
         assert tag in scalars, tag
-    from warp_terrain.evaluation.reconstructor import Reconstructor
 
     assert Reconstructor.load(summary["checkpoint"], device="cpu").has_uncertainty
 
@@ -255,7 +255,6 @@ class _Payload:
 
 @pytest.mark.parametrize("loader", ["checkpoint", "reconstructor"])
 def test_a_planted_pickle_payload_never_runs(tmp_path, loader):
-    from warp_terrain.evaluation.reconstructor import Reconstructor
 
     marker = tmp_path / "pwned"
     path = tmp_path / "evil.pt"
@@ -263,3 +262,22 @@ def test_a_planted_pickle_payload_never_runs(tmp_path, loader):
     with pytest.raises(ValueError, match="evil.pt"):
         load_checkpoint(path) if loader == "checkpoint" else Reconstructor.load(path)
     assert not marker.exists()
+
+
+def test_the_shipped_model_was_trained_with_experiment_pretrained():
+    """The run config recorded beside the shipped model is what `python train.py
+    experiment=pretrained` composes (only the progress bar and the resume flag may differ), and
+    the shipped weights are that model's."""
+    from omegaconf import OmegaConf
+
+    from warp_terrain.evaluation.reconstructor import pretrained_path
+
+    recorded = OmegaConf.to_container(OmegaConf.load(pretrained_path().parent / "run_config.yaml"))
+    composed = OmegaConf.to_container(OmegaConf.structured(run_config("experiment=pretrained")))
+    for cfg in (recorded, composed):
+        for key in ("progress", "resume"):
+            cfg["train"].pop(key)
+    assert recorded == composed
+    rec = Reconstructor.load(device="cpu")
+    assert rec.model_config.to_dict() == composed["model"]
+    assert rec.meta["step"] == composed["train"]["steps"]

@@ -1030,7 +1030,8 @@ def format_table(report: dict) -> str:
             for batch, e in run["end_to_end"].items():
                 what = f"reconstruct(points): {p['points_in_cloud']:,} points" if batch == "1" else f"project {batch} scans + predict_maps"
                 rows.append((f"infer B={batch}", f"{what} -> {p['map_size']}^2 map ({p['model']} ngf {p['ngf']}"
-                                                 f"{', residual' if p['residual'] else ''}), {run['threads']} thread(s)",
+                                                 f"{', residual' if p['residual'] else ''}{', 8-orientation TTA' if p.get('tta') else ''}), "
+                                                 f"{run['threads']} thread(s)",
                              _ms(e["median_s"]), f"{e['maps_per_s']:.1f} maps/s"))
                 n = run["network"][batch]
                 rows.append(("", "  network: torch", _ms(n["torch"]["median_s"]), ""))

@@ -116,9 +116,11 @@ class Reconstructor:
         if not self.tta:
             height, log_variance = split_output(self.generator(self.condition(scan, mask)), self.has_uncertainty)
             return height, None if log_variance is None else self.sigma_scale * standard_deviation(log_variance)
+        # the 8 orientations as one batch (the generator is in eval mode: maps do not interact)
+        condition = self.condition(scan, mask)
+        outputs = self.generator(torch.cat([_orient(condition, turns, mirror) for turns, mirror in DIHEDRAL]))
         heights, variances = [], []
-        for turns, mirror in DIHEDRAL:
-            output = self.generator(self.condition(_orient(scan, turns, mirror), _orient(mask, turns, mirror)))
+        for (turns, mirror), output in zip(DIHEDRAL, outputs.chunk(len(DIHEDRAL))):
             height, log_variance = split_output(_unorient(output, turns, mirror), self.has_uncertainty)
             heights.append(height)
             if log_variance is not None:

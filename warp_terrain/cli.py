@@ -278,24 +278,23 @@ def _baseline_names(value: str) -> list[str]:
     return names
 
 
-def _non_negative_int(value: str) -> int:
-    try:
-        n = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid count {value!r}: expected an integer >= 0") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"invalid count {value!r}: expected an integer >= 0")
-    return n
+def _int_at_least(minimum: int, what: str):
+    """An argparse type: an integer >= ``minimum``, or an error naming ``what`` it is."""
+
+    def parse(value: str) -> int:
+        try:
+            n = int(value)
+        except ValueError:
+            n = None
+        if n is None or n < minimum:
+            raise argparse.ArgumentTypeError(f"invalid {what} {value!r}: expected an integer >= {minimum}")
+        return n
+
+    return parse
 
 
-def _positive_int(value: str) -> int:
-    try:
-        n = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid size {value!r}: expected an integer >= 1") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"invalid size {value!r}: expected an integer >= 1")
-    return n
+_non_negative_int = _int_at_least(0, "count")
+_positive_int = _int_at_least(1, "size")
 
 
 def add_evaluate(sub) -> None:

@@ -88,9 +88,10 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize(device)
 
 
-def _time(fn: Callable[[], object], device: str, repeats: int) -> list[float]:
-    """Seconds per call of ``fn`` over ``repeats`` calls, after one untimed warm-up call."""
-    fn()
+def _time(fn: Callable[[], object], device: str, repeats: int, warmup: int = 1) -> list[float]:
+    """Seconds per call of ``fn`` over ``repeats`` calls, after ``warmup`` untimed calls."""
+    for _ in range(warmup):
+        fn()
     _sync(device)
     times = []
     for _ in range(repeats):
@@ -614,14 +615,7 @@ def _compiled_child(spec_json: str) -> None:
     step()  # anything compiled late (e.g. guards on the second call)
     _sync(device)
     print(json.dumps({"event": "compiled", "first_two_steps_s": time.perf_counter() - t0}), flush=True)
-    times = []
-    for _ in range(repeats):
-        _sync(device)
-        t = time.perf_counter()
-        step()
-        _sync(device)
-        times.append(time.perf_counter() - t)
-    print(json.dumps({"event": "done", **_timing(times)}), flush=True)
+    print(json.dumps({"event": "done", **_timing(_time(step, device, repeats, warmup=0))}), flush=True)
 
 
 def _train_compiled(model_cfg, batch: int, device: str, repeats: int, plain_step_s: float, threads: int,

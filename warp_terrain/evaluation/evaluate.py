@@ -171,10 +171,10 @@ def make_eval_set(terrain: str, noise: float = 0.0, size: int = DEFAULT_SIZE, li
 
 # ------------------------------------------------------------------------------ models
 def model_predictor(model, in_channels: int, chunk: int = 16) -> Predictor:
-    """A predictor from a model with ``predict(condition) -> (B, C, S, S)`` (e.g.
+    """A predictor from a model with ``predict(condition) -> (B, 1, S, S)`` heights (e.g.
     ``Pix2PixModel``): the condition is built as ``training.loop.model_input`` builds it (the
     scan, or scan and mask for ``in_channels == 2``), inputs are moved to the model's device,
-    batches of ``chunk`` maps at a time; channel 0 of the output is the height map."""
+    batches of ``chunk`` maps at a time."""
     from ..training.loop import model_input
 
     device = getattr(model, "device", None)
@@ -185,7 +185,7 @@ def model_predictor(model, in_channels: int, chunk: int = 16) -> Predictor:
             pair = {"scan": scan[i : i + chunk], "mask": mask[i : i + chunk]}
             if device is not None:
                 pair = {k: v.to(device) for k, v in pair.items()}
-            outs.append(model.predict(model_input(pair, in_channels))[:, :1].float())
+            outs.append(model.predict(model_input(pair, in_channels)).float())
         return torch.cat(outs).to(scan.device)
 
     return predict

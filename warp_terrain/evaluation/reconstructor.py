@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..models import ModelConfig, build_generator
-from ..models.uncertainty import split_output, standard_deviation
+from ..models.uncertainty import split_output
 from ..pointclouds import check_points
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
@@ -113,14 +113,12 @@ class Reconstructor:
     def predict_maps_with_uncertainty(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """``(elevation maps, standard deviations in metres or None)``, each (B, 1, S, S)."""
         scan, mask = scan.to(self.device), mask.to(self.device)
-        if not self.tta:
-            height, log_variance = split_output(self.generator(self.condition(scan, mask)), self.has_uncertainty)
-            return height, None if log_variance is None else self.sigma_scale * standard_deviation(log_variance)
-        # the 8 orientations as one batch (the generator is in eval mode: maps do not interact)
+        orientations = DIHEDRAL if self.tta else DIHEDRAL[:1]  # DIHEDRAL[0]: as the map is
+        # all orientations as one batch (the generator is in eval mode: maps do not interact)
         condition = self.condition(scan, mask)
-        outputs = self.generator(torch.cat([_orient(condition, turns, mirror) for turns, mirror in DIHEDRAL]))
+        outputs = self.generator(torch.cat([_orient(condition, turns, mirror) for turns, mirror in orientations]))
         heights, variances = [], []
-        for (turns, mirror), output in zip(DIHEDRAL, outputs.chunk(len(DIHEDRAL))):
+        for (turns, mirror), output in zip(orientations, outputs.chunk(len(orientations))):
             height, log_variance = split_output(_unorient(output, turns, mirror), self.has_uncertainty)
             heights.append(height)
             if log_variance is not None:

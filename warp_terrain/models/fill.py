@@ -68,14 +68,13 @@ class FillResidualGenerator(nn.Module):
         scan, mask = condition[:, :1], condition[:, 1:2]
         fill = push_pull_fill(scan, mask)
         reference = mean_observed(scan, mask)
-        if self.height_scale_min <= 0:
-            out = self.net(torch.cat([fill - reference, mask], dim=1))
-            height, rest = fill + out[:, :1], out[:, 1:]
-        else:
+        if self.height_scale_min > 0:
             scale = observed_spread(scan, mask, reference, self.height_scale_min)
-            out = self.net(torch.cat([(fill - reference) / scale, mask], dim=1))
-            height, rest = fill + scale * out[:, :1], out[:, 1:] + 2.0 * torch.log(scale)
-        return height if out.shape[1] == 1 else torch.cat([height, rest], dim=1)
+        else:  # metres: dividing and multiplying by exactly 1 changes no bit
+            scale = torch.ones_like(reference)
+        out = self.net(torch.cat([(fill - reference) / scale, mask], dim=1))
+        height = fill + scale * out[:, :1]
+        return height if out.shape[1] == 1 else torch.cat([height, out[:, 1:] + 2.0 * torch.log(scale)], dim=1)
 
 
 def unobserved_weight_map(mask: torch.Tensor, unobserved_weight: float) -> torch.Tensor:

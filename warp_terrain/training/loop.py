@@ -107,6 +107,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
 
     writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None) if ranks.main else NullWriter()
     base_lrs = {id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d}
+    relief_floor = cfg.model.height_scale_min if cfg.model.relief_relative_loss else 0.0
 
     def validate(step: int) -> tuple[float, torch.Tensor | None]:
         if not ranks.main:
@@ -150,7 +151,6 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
             for g in opt.param_groups:
                 g["lr"] = base_lrs[id(opt)] * factor
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items() if k != "step"}
-        relief_floor = cfg.model.height_scale_min if cfg.model.relief_relative_loss else 0.0
         weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, relief_floor)
         model.set_input(model_input(batch, cfg.model.in_channels), batch["target"], weight)
         model.optimize_parameters()

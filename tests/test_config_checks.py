@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from warp_terrain.config import RunConfig, to_run_config
+from warp_terrain.compose import RunConfig, to_run_config
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "configuration.md"
 OBSTACLE_INVALID = {

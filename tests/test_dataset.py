@@ -14,8 +14,8 @@ from omegaconf import OmegaConf
 import warp_terrain
 from warp_terrain import SimConfig, generate_batch, lidar_preset
 from warp_terrain.cli import main
-from warp_terrain.export.dataset import DatasetError, DiskPairs, shard_seed, write_dataset
-from warp_terrain.training.stream import batch_seed, make_pair, training_batches
+from warp_terrain.data.disk import DatasetError, DiskPairs, shard_seed, write_dataset
+from warp_terrain.data.stream import batch_seed, make_pair, training_batches
 
 ROOT = Path(__file__).resolve().parents[1]
 MAPS = ("scan", "mask", "target")
@@ -153,18 +153,18 @@ def test_training_batches_from_a_dataset_cycle_reproducibly(dataset):
 
 
 def test_train_reads_the_dataset_through_config(dataset, tmp_path):
-    from warp_terrain.config import register_configs, to_run_config
+    from warp_terrain.compose import register_configs, to_run_config
     from warp_terrain.training import train
 
     out, _ = dataset
     register_configs()
     tiny = ["model=unet", "model.ngf=8", "model.ndf=8", "model.unet_depth=3", "data.map_size=41", "terrain.margin=0.5",
-            "lidar=vlp16", "lidar.azimuth_step_deg=2.0", "data.noise=0.05", "train.batch_size=2", "train.val_size=2",
+            "terrain.amplitude=1.5", "lidar=vlp16", "lidar.azimuth_step_deg=2.0", "data.noise=0.05", "train.batch_size=2", "train.val_size=2",
             "train.workers=0", "train.progress=false", "train.steps=2", f"train.dataset={out}"]
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = to_run_config(compose(config_name="config", overrides=tiny))
     assert cfg.train.dataset == str(out)
-    with pytest.warns(UserWarning, match="different terrain/lidar/data config"):  # the dataset's terrain is not conf's octave5
+    with pytest.warns(UserWarning, match="different terrain/lidar/data config"):  # the run's terrain (amplitude 1.5 m) is not the dataset's
         summary = train(cfg, tmp_path / "run")
     assert summary["steps"] == 2 and Path(summary["checkpoint"]).is_file()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

@@ -25,14 +25,13 @@ from warp_terrain.evaluation.evaluate import (
     bare_config,
     eval_seeds,
     json_ready,
-    load_model_predictor,
     make_eval_set,
-    model_predictor,
     setting_config,
 )
 from warp_terrain.sim import generate_batch
 from warp_terrain.sim.batch import terrain_size
-from warp_terrain.training.stream import VALIDATION_SEED_BASE, batch_seed, validation_seed
+from warp_terrain.data.seeds import VALIDATION_SEED_BASE, batch_seed, validation_seed
+from warp_terrain.inference.predictor import load_predictor, model_predictor
 
 
 def t(a) -> torch.Tensor:
@@ -267,11 +266,12 @@ def test_model_predictor_and_checkpoint(tmp_path):
     torch.testing.assert_close(out, expected)
     path = tmp_path / "best.pt"
     torch.save({"model": model.state_dict(), "step": 7, "config": {"model": {"in_channels": 2, "name": "unet"}}}, path)
-    predictor, info = load_model_predictor(path, device="cpu", tta=False)
+    predictor = load_predictor(path, device="cpu", tta=False)
+    info = predictor.info
     assert info["in_channels"] == 2 and info["step"] == 7 and not info["tta"]
     torch.testing.assert_close(predictor(scan, mask), expected)
     with pytest.raises(ValueError, match="does not exist"):
-        load_model_predictor(tmp_path / "missing.pt")
+        load_predictor(tmp_path / "missing.pt")
 
 
 def test_evaluate_cli_quick_json(tmp_path, capsys):

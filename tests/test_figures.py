@@ -9,7 +9,7 @@ from pxr import Usd, UsdGeom
 
 from warp_terrain import SimConfig, lidar_preset
 from warp_terrain.cli import main
-from warp_terrain.export.figures import FIGURE_FILES, prediction_figure
+from warp_terrain.plots.figures import FIGURE_FILES, prediction_figure
 from warp_terrain.models import Pix2PixModel
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -59,10 +59,10 @@ def test_figures_bad_checkpoint(tmp_path, capsys):
 
 def test_predictor_is_any_callable_and_its_shape_is_checked():
     sim = tiny_sim()
-    fig = prediction_figure(lambda c: c[:, :1] * 0.0, 1, sim, samples=1, device="cpu")
+    fig = prediction_figure(lambda scan, mask: scan * 0.0, sim, samples=1, device="cpu")
     assert len(fig.axes) >= 3
     with pytest.raises(ValueError, match="predictor"):
-        prediction_figure(lambda c: c[:, :1, :10], 1, sim, samples=1, device="cpu")
+        prediction_figure(lambda scan, mask: scan[:, :, :10], sim, samples=1, device="cpu")
 
 
 def test_export_usd_command(tmp_path, checkpoint):

@@ -27,9 +27,10 @@ from hydra import compose, initialize_config_dir
 from test_training import TINY as TRAINING_TINY
 
 import warp_terrain.training.loop as loop
-from warp_terrain.config import register_configs, to_run_config
+from warp_terrain.compose import register_configs, to_run_config
 from warp_terrain.training import train
-from warp_terrain.training.checkpoint import LATEST, load_checkpoint, resolve_resume
+from warp_terrain.core.torchfile import load_checkpoint
+from warp_terrain.training.checkpoint import LATEST, resolve_resume
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 120.0  # seconds any one child may take; a step takes well under a second
@@ -60,7 +61,9 @@ die_on_write = int(os.environ.get("KILL_RESUME_DIE_ON_WRITE", "0"))
 import torch
 import warp_terrain.training.loop as loop
 
-loop.log_paper_figures = lambda *a, **k: None  # the final model's figures: seconds of matplotlib
+import warp_terrain.plots.callbacks as callbacks
+
+callbacks.PaperFigures.on_finish = lambda *a, **k: None  # the final model's figures: seconds of matplotlib
 
 if progress:
     stream = loop.training_batches
@@ -147,8 +150,6 @@ def _resume(tmp_path: Path, run_dir: Path, ckpt_step: int, total: int) -> dict:
 def reference(tmp_path_factory):
     """The checkpoint of an uninterrupted run of ``total`` steps from the same seed."""
     cache = {}
-    monkeypatch = pytest.MonkeyPatch()
-    monkeypatch.setattr(loop, "log_paper_figures", lambda *a, **k: None)  # as in the children
 
     def run(total: int) -> dict:
         if total not in cache:
@@ -163,8 +164,7 @@ def reference(tmp_path_factory):
             cache[total] = load_checkpoint(summary["checkpoint"])
         return cache[total]
 
-    yield run
-    monkeypatch.undo()
+    return run
 
 
 def _assert_same_model(resumed: dict, straight: dict) -> None:

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 import warp_terrain as wt
-from warp_terrain.pointclouds import check_points, read_point_cloud
+from warp_terrain.inference.pointclouds import check_points, read_point_cloud
 
 BASE = settings(database=None, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
@@ -477,7 +477,7 @@ def test_check_points_accepts_only_usable_clouds(array):
 # -- Reconstructor --------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def reconstructor():
-    from warp_terrain.evaluation.reconstructor import Reconstructor
+    from warp_terrain.inference.reconstructor import Reconstructor
 
     return Reconstructor.load(device="cpu")
 

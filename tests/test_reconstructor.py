@@ -7,11 +7,11 @@ import pytest
 import torch
 
 import warp_terrain as wt
-from warp_terrain.evaluation.reconstructor import Reconstructor
-from warp_terrain.export.onnx import check_onnx, export_onnx
+from warp_terrain.inference.reconstructor import Reconstructor
+from warp_terrain.inference.onnx import check_onnx, export_onnx
 from warp_terrain.models import ModelConfig, build_generator
 from warp_terrain.models.fill import push_pull_fill
-from warp_terrain.pointclouds import apply_transform, read_point_cloud, transform_matrix
+from warp_terrain.inference.pointclouds import apply_transform, read_point_cloud, transform_matrix
 
 SMALL = ModelConfig(name="unet", in_channels=2, residual=True, ngf=8, ndf=8, unet_depth=4)
 
@@ -176,7 +176,7 @@ def test_onnx_matches_torch(tmp_path, cfg):
 
 
 def test_the_shipped_model_loads_with_weights_only_and_reconstructs(monkeypatch):
-    from warp_terrain.evaluation.reconstructor import pretrained_path
+    from warp_terrain.inference.reconstructor import pretrained_path
 
     path = pretrained_path()
     assert path.is_file() and path.stat().st_size < 8 * 2**20  # small enough to ship

@@ -9,11 +9,14 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from warp_terrain.config import register_configs, to_run_config
-from warp_terrain.evaluation.reconstructor import Reconstructor
-from warp_terrain.training import batch_seed, train, training_batches
-from warp_terrain.training.checkpoint import load_checkpoint
-from warp_terrain.training.stream import VALIDATION_SEED_BASE
+from warp_terrain.compose import register_configs, to_run_config
+from warp_terrain.inference.reconstructor import Reconstructor
+from warp_terrain.data.seeds import batch_seed
+from warp_terrain.data.stream import training_batches
+from warp_terrain.plots.callbacks import PaperFigures
+from warp_terrain.training import train
+from warp_terrain.core.torchfile import load_checkpoint
+from warp_terrain.data.seeds import VALIDATION_SEED_BASE
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = str(ROOT / "conf")
@@ -130,7 +133,7 @@ def test_training_logs_checkpoints_and_resumes_exactly(tmp_path):
     # constant learning rates: a longer run would otherwise decay them on another schedule
     steps = ["train.val_every=2", "train.image_every=2", "train.checkpoint_every=2", "train.lr_decay_from=1.0"]
     cfg = run_config(*TINY, *steps, "train.steps=4")
-    first = train(cfg, tmp_path / "run")
+    first = train(cfg, tmp_path / "run", callbacks=[PaperFigures()])
     assert Path(first["checkpoint"]).is_file() and Path(first["images"]).stat().st_size > 0
     ea = _events(tmp_path / "run")
     tags = ea.Tags()
@@ -167,7 +170,6 @@ def test_the_scaled_residual_model_with_uncertainty_trains_and_logs_its_calibrat
 def test_same_seed_and_config_train_bit_identically_on_cpu(tmp_path, monkeypatch):
     """Two fresh runs with one seed: the same batches, so bit-identical losses and weights;
     another seed draws other batches and ends elsewhere."""
-    monkeypatch.setattr("warp_terrain.training.loop.log_paper_figures", lambda *a, **k: None)
     steps = ["train.steps=3", "train.val_every=3", "train.image_every=3", "train.checkpoint_every=3", "train.threads=1"]
     runs = {name: train(run_config(*TINY, *steps, f"train.seed={seed}"), tmp_path / name)
             for name, seed in (("a", 7), ("b", 7), ("c", 8))}
@@ -270,7 +272,7 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
     the shipped weights are that model's."""
     from omegaconf import OmegaConf
 
-    from warp_terrain.evaluation.reconstructor import pretrained_path
+    from warp_terrain.inference.reconstructor import pretrained_path
 
     recorded = OmegaConf.to_container(OmegaConf.load(pretrained_path().parent / "run_config.yaml"))
     composed = OmegaConf.to_container(OmegaConf.structured(run_config("experiment=pretrained")))

@@ -20,6 +20,7 @@ import warp as _wp
 if not _os.environ.get("WARP_TERRAIN_VERBOSE"):
     _wp.config.log_level = _wp.LOG_WARNING
 
+from .core.version import __version__  # noqa: E402
 from .sim import (  # noqa: E402
     Batch,
     DataConfig,
@@ -33,10 +34,9 @@ from .sim import (  # noqa: E402
     lidar_preset,
     project_points,
 )
-from .evaluation.reconstructor import Reconstructor  # noqa: E402
+from .inference.reconstructor import Reconstructor  # noqa: E402
 from .export.usd import export_usd  # noqa: E402
 
-__version__ = "0.1.0"
 
 __all__ = [
     "Batch",

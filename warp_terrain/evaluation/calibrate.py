@@ -17,7 +17,7 @@ import math
 import torch
 
 from ..sim import SimConfig
-from ..training.stream import make_pair, validation_seed
+from ..data.stream import make_pair, validation_seed
 
 #: First validation chunk used for calibration (training validates on chunks 0, 1, ...).
 CALIBRATION_FIRST_CHUNK = 4096

@@ -1,12 +1,12 @@
 """Scoring fills and models in metres on fixed test sets (``warp-terrain evaluate``).
 
-A *test set* is one data setting, a terrain (``conf/terrain/<name>.yaml``) at one image-noise
+A *test set* is one data setting, a terrain preset (``sim.presets``) at one image-noise
 level, with ``size`` samples from the HDL-32E (by default) at the training defaults' map size
 and cell, without augmentation. Its samples come from fixed seeds that neither training nor
 validation draws:
 
-- training batch seeds lie in ``[0, 2**30)`` (``training.stream.batch_seed``), validation uses
-  ``2**30 + i`` for its ``i``-th chunk of 16 samples (``training.stream.validation_seed``);
+- training batch seeds lie in ``[0, 2**30)`` (``data.seeds.batch_seed``), validation uses
+  ``2**30 + i`` for its ``i``-th chunk of 16 samples (``data.seeds.validation_seed``);
 - test chunk ``i`` (samples ``16 i .. 16 i + 15``) uses seed ``TEST_SEED_BASE + i`` with
   ``TEST_SEED_BASE = 2**31 - 2**24``: the top 2**24 seeds of the 31 bits ``generate_batch``
   keeps. Validation would need more than a billion chunks to reach them.
@@ -18,7 +18,7 @@ ground (the same seed with every obstacle count set to zero: see ``metrics``).
 
 A *predictor* is any ``f(scan, mask) -> prediction`` on ``(B, 1, S, S)`` tensors: the classical
 fills in :data:`~warp_terrain.evaluation.baselines.BASELINES` are predictors, and
-:func:`model_predictor` wraps a trained model as one. A predictor may also return
+``inference.Predictor`` (``load_predictor``, ``model_predictor``) wraps a model as one. A predictor may also return
 ``(prediction, sigma)``, a standard deviation per cell: its calibration on unobserved cells is
 then scored too (``metrics.calibration``). :func:`evaluate` runs every predictor on
 every test set and returns plain dicts (JSON-ready); :func:`format_table` and
@@ -37,8 +37,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..paths import file_name, output_path
+from ..core.paths import file_name, output_path
+from ..data.seeds import TEST_SEED_BASE
 from ..sim import SimConfig, generate_batch, lidar_preset, resolve_device
+from ..sim.presets import preset_sim, terrain_preset_names
 from ..sim.terrain import OBSTACLE_KINDS, ObstacleConfig
 from .baselines import BASELINES
 from .metrics import OBSTACLE_THRESHOLD, calibration, error_metrics, masked_rmse, obstacle_iou, pit_recall, range_cells
@@ -56,16 +58,12 @@ __all__ = [
     "format_markdown",
     "format_table",
     "json_ready",
-    "load_model_predictor",
     "make_eval_set",
-    "model_predictor",
     "score",
     "setting_config",
     "write_figure",
 ]
 
-#: First test seed: the top 2**24 of the 31-bit seeds (training: [0, 2**30); validation: 2**30 + i).
-TEST_SEED_BASE = 2**31 - 2**24
 #: Samples per generated chunk (chunk ``i`` is seed ``TEST_SEED_BASE + i``).
 CHUNK = 16
 DEFAULT_SETTINGS = ("octave3", "octave5", "flat_cylinders", "negative_obstacles")
@@ -75,7 +73,8 @@ QUICK_SIZE = 4
 POSITIVE_KINDS = ("cylinders", "boxes", "rocks")
 NEGATIVE_KINDS = ("pits", "ditches")
 
-Predictor = Callable[[torch.Tensor, torch.Tensor], torch.Tensor | tuple[torch.Tensor, torch.Tensor]]
+#: ``(scan, mask) -> heights`` or ``(heights, sigma)``: a ``Predictor`` or a classical fill.
+PredictorFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor | tuple[torch.Tensor, torch.Tensor]]
 
 
 # ------------------------------------------------------------------------------ test sets
@@ -128,11 +127,10 @@ def setting_config(terrain: str, noise: float = 0.0, lidar="hdl32e") -> SimConfi
     """The ``SimConfig`` of a test setting: terrain ``conf/terrain/<terrain>.yaml`` (or a YAML
     path), ``lidar`` (a preset name or a ``LidarConfig``), image noise ``noise``, no augmentation,
     the training defaults' maps (121 x 121 cells of 0.25 m)."""
-    from ..export.figures import load_terrain_setting
 
     if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not 0.0 <= float(noise) <= 1.0:
         raise ValueError(f"noise={noise!r}: must be a number in [0, 1] (a fraction of the height range)")
-    sim = load_terrain_setting(terrain, augment=False)
+    sim = preset_sim(terrain, augment=False)
     sim.lidar = lidar_preset(lidar) if isinstance(lidar, str) else copy.deepcopy(lidar)
     sim.data.noise = float(noise)
     sim.validate()
@@ -169,62 +167,13 @@ def make_eval_set(terrain: str, noise: float = 0.0, size: int = DEFAULT_SIZE, li
     )
 
 
-# ------------------------------------------------------------------------------ models
-def model_predictor(model, in_channels: int, chunk: int = 16) -> Predictor:
-    """A predictor from a model with ``predict(condition) -> (B, 1, S, S)`` heights (e.g.
-    ``Pix2PixModel``): the condition is built as ``training.loop.model_input`` builds it (the
-    scan, or scan and mask for ``in_channels == 2``), inputs are moved to the model's device,
-    batches of ``chunk`` maps at a time."""
-    from ..training.loop import model_input
-
-    device = getattr(model, "device", None)
-
-    def predict(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        outs = []
-        for i in range(0, scan.shape[0], chunk):
-            pair = {"scan": scan[i : i + chunk], "mask": mask[i : i + chunk]}
-            if device is not None:
-                pair = {k: v.to(device) for k, v in pair.items()}
-            outs.append(model.predict(model_input(pair, in_channels)).float())
-        return torch.cat(outs).to(scan.device)
-
-    return predict
-
-
-def load_model_predictor(path=None, device=None, chunk: int = 16, tta: bool = True) -> tuple[Predictor, dict]:
-    """A predictor from a training checkpoint (``checkpoints/best.pt``), a ``Reconstructor``
-    file, or (``path=None``) the model shipped in the package, and a short description of it.
-    ``tta``: average over the 8 orientations of each map (``Reconstructor``)."""
-    from .reconstructor import Reconstructor, pretrained_path
-
-    rec = Reconstructor.load(path, device=device, tta=tta)
-
-    def predict(scan: torch.Tensor, mask: torch.Tensor):
-        outs = [rec.predict_maps_with_uncertainty(scan[i : i + chunk], mask[i : i + chunk]) for i in range(0, scan.shape[0], chunk)]
-        height = torch.cat([h.float() for h, _ in outs]).to(scan.device)
-        if not rec.has_uncertainty:
-            return height
-        return height, torch.cat([s.float() for _, s in outs]).to(scan.device)
-
-    info = {
-        "checkpoint": str(path if path is not None else pretrained_path()),
-        "step": rec.meta.get("step"),
-        "in_channels": rec.model_config.in_channels,
-        "generator": rec.model_config.name,
-        "residual": rec.model_config.residual,
-        "uncertainty": rec.has_uncertainty,
-        "tta": rec.tta,
-    }
-    return predict, info
-
-
 # ------------------------------------------------------------------------------ evaluation
 def _sync(device: str) -> None:
     if str(device).startswith("cuda") and torch.cuda.is_available():
         torch.cuda.synchronize()
 
 
-def _run(predictor: Predictor, ts: EvalSet, device: str) -> tuple[torch.Tensor, torch.Tensor | None, float]:
+def _run(predictor: PredictorFn, ts: EvalSet, device: str) -> tuple[torch.Tensor, torch.Tensor | None, float]:
     """``(prediction, sigma or None, seconds)``, on the CPU."""
     scan, mask = ts.scan.to(device), ts.mask.to(device)
     _sync(device)
@@ -265,7 +214,7 @@ def _names(value, allowed: Iterable[str] | None, what: str) -> list[str]:
 
 
 def evaluate(
-    predictors: Mapping[str, Predictor] | None = None,
+    predictors: Mapping[str, PredictorFn] | None = None,
     settings: Iterable[str] | str = DEFAULT_SETTINGS,
     noise: Iterable[float] = DEFAULT_NOISE,
     size: int = DEFAULT_SIZE,
@@ -294,9 +243,8 @@ def evaluate(
         raise ValueError("predictors: nothing to evaluate (give at least one method)")
     settings = _names(settings, None, "settings")
     if settings == ["all"]:
-        from ..export.figures import terrain_setting_names
 
-        settings = terrain_setting_names()
+        settings = terrain_preset_names()
     if not settings:
         raise ValueError("settings: give at least one terrain setting")
     noise = [float(n) for n in noise]
@@ -488,7 +436,7 @@ def write_figure(path, ts: EvalSet, predictions: Mapping[str, torch.Tensor], ind
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ..export.figures import save_figure
+    from ..plots.figures import save_figure
 
     scan = ts.scan[index, 0].numpy()
     mask = ts.mask[index, 0].numpy() > 0

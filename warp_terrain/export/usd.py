@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_path
+from ..core.atomic import atomic_path
 
 __all__ = ["USD_SUFFIXES", "check_usd_path", "export_usd", "grid_faces", "grid_normals", "grid_points"]
 

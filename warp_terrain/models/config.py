@@ -64,6 +64,10 @@ class ModelConfig:
             value = getattr(self, field)
             if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
                 raise bad(field, "expected a positive integer")
+        if self.in_channels not in (1, 2):
+            raise bad("in_channels", "inputs are the scan (1) or the scan and its mask (2)")
+        if self.out_channels != 1:
+            raise bad("out_channels", "the generator predicts one height map (1)")
         if isinstance(self.unet_depth, bool) or not isinstance(self.unet_depth, int) or self.unet_depth < 2:
             raise bad("unet_depth", "expected an integer >= 2")
         for field in ("lr_g", "lr_d"):

@@ -6,11 +6,14 @@ handed to torch with ``wp.to_torch``, sharing memory with the Warp arrays (no co
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import torch
 import warp as wp
 
+from ..core.geometry import MAP_CELL, MAP_SIZE, MapGeometry
+from ..core.structs import build
 from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
 from .device import resolve_device, to_warp
@@ -20,7 +23,7 @@ from .projection import bin_into_maps, check_map
 from .randomize import RandomizeConfig, randomize
 from .scan import as_heightfields, trace
 from .terrain import TerrainConfig, grid_size, make_heightfields
-from .validation import check_finite, require
+from ..core.checks import check_finite, require
 
 
 @dataclass
@@ -38,14 +41,19 @@ class DataConfig:
     map); set it false for the whole scan over the whole simulated terrain.
     """
 
-    map_size: int = 121
-    map_cell: float = 0.25
+    map_size: int = MAP_SIZE
+    map_cell: float = MAP_CELL
     noise: float = 0.0
     augment: bool = True
     truth_samples: int = 4
     fill: float = 0.0
     clip_rays: bool = True
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
+
+    @property
+    def geometry(self) -> MapGeometry:
+        """The map's size, cell, extent and cell centres."""
+        return MapGeometry(self.map_size, self.map_cell)
 
     def validate(self) -> None:
         check_map(self.map_size, self.map_cell)
@@ -100,9 +108,8 @@ class Batch:
 
 def as_sim_config(cfg) -> SimConfig:
     """A validated ``SimConfig`` from None, a ``SimConfig``/``DataConfig``, or any object or
-    mapping (a Hydra run config) with ``terrain``/``lidar``/``data`` entries."""
-    from omegaconf import DictConfig, OmegaConf
-
+    mapping (a Hydra run config, a ``RunConfig``, a checkpoint's config dict) with
+    ``terrain``/``lidar``/``data`` entries; what they give is merged over the defaults."""
     if cfg is None:
         sim = SimConfig()
     elif isinstance(cfg, SimConfig):
@@ -110,12 +117,12 @@ def as_sim_config(cfg) -> SimConfig:
     elif isinstance(cfg, DataConfig):
         sim = SimConfig(data=cfg)
     else:
-        if not isinstance(cfg, DictConfig):
-            cfg = OmegaConf.create(cfg if isinstance(cfg, dict) else OmegaConf.structured(cfg))
-        schema = OmegaConf.structured(SimConfig)
-        picked = {k: cfg[k] for k in ("terrain", "lidar", "data") if k in cfg}
-        merged = OmegaConf.merge(schema, picked)
-        sim = OmegaConf.to_object(merged)
+        sections = ("terrain", "lidar", "data")
+        if dataclasses.is_dataclass(cfg):
+            picked = {k: getattr(cfg, k) for k in sections if hasattr(cfg, k)}
+        else:
+            picked = {k: cfg[k] for k in sections if k in cfg}
+        sim = build(SimConfig, picked)
     sim.validate()
     return sim
 

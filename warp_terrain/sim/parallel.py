@@ -26,7 +26,7 @@ import numpy as np
 
 from .lidar import LidarConfig
 from .terrain import TerrainConfig
-from .validation import require
+from ..core.checks import require
 
 
 def _share(shape: tuple[int, ...]) -> tuple[shared_memory.SharedMemory, np.ndarray]:

@@ -8,7 +8,7 @@ import warp as wp
 
 from ..kernels import projection as projection_kernels
 from .device import resolve_device, to_warp
-from .validation import check_finite, require
+from ..core.checks import check_finite, require
 
 
 def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str, fill: float = 0.0):

@@ -17,7 +17,7 @@ import numpy as np
 
 from .lidar import LIDAR_PRESETS, lidar_preset
 from .terrain import OBSTACLE_KINDS, ObstacleConfig
-from .validation import check_finite, require
+from ..core.checks import check_finite, require
 
 
 @dataclass

@@ -12,7 +12,7 @@ from ..kernels import heightfield as heightfield_kernels
 from ..kernels import raycast as raycast_kernels
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig
-from .validation import check_finite, require
+from ..core.checks import check_finite, require
 
 TILE = 8  # cells per side of the max-height tiles that let rays skip empty space
 VERTICAL_DEG = 89.9  # rings steeper than this are cast one ray at a time (no horizontal walk)

@@ -11,8 +11,8 @@ import warp as wp
 
 from ..kernels import noise as noise_kernels
 from ..kernels import obstacles as obstacle_kernels
+from ..core.checks import check_finite, require
 from .device import resolve_device
-from .validation import check_finite, require
 
 
 @dataclass
@@ -57,7 +57,7 @@ OBSTACLE_KINDS = {
 class TerrainConfig:
     """A random terrain: fBm Perlin relief plus obstacles.
 
-    The relief is ``amplitude * fBm`` with ``octaves`` octaves whose first wavelength is
+    The defaults are the ``octave5`` preset (``sim.presets``). The relief is ``amplitude * fBm`` with ``octaves`` octaves whose first wavelength is
     ``feature_size`` metres (each octave ``lacunarity`` times finer and ``persistence`` times
     weaker); heights lie within +-``amplitude``. ``cell`` is the terrain's resolution, finer
     than the elevation map so obstacle edges stay sharp; ``margin`` is how far the terrain
@@ -70,8 +70,8 @@ class TerrainConfig:
     octaves: int = 5
     persistence: float = 0.5
     lacunarity: float = 2.0
-    feature_size: float = 16.0
-    amplitude: float = 1.5
+    feature_size: float = 20.0
+    amplitude: float = 2.0
     cell: float = 0.125
     margin: float = 1.0
     obstacle_region: float = 0.0

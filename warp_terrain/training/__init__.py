@@ -1,7 +1,6 @@
-"""Training: the endless stream, the generic loop, checkpoints and TensorBoard logging."""
+"""Training: the loop, its configuration, checkpoints, ranks and TensorBoard logging."""
 
-from .config import TrainConfig
+from .config import RunConfig, TrainConfig
 from .loop import train
-from .stream import PairStream, batch_seed, training_batches, validation_set
 
-__all__ = ["PairStream", "TrainConfig", "batch_seed", "train", "training_batches", "validation_set"]
+__all__ = ["RunConfig", "TrainConfig", "train"]

@@ -15,19 +15,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..atomic import atomic_open
 from .config import RESUME_LATEST, RESUME_OFF
 
 LATEST = "latest.pt"
 BEST = "best.pt"
-
-
-def atomic_save(obj, path: str | os.PathLike) -> None:
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise ValueError(f"checkpoint folder {str(path.parent)!r} does not exist")
-    with atomic_open(path) as f:
-        torch.save(obj, f)
 
 
 def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
@@ -39,16 +30,6 @@ def remove_stale_temporaries(folder: str | os.PathLike) -> list[Path]:
     for p in stale:
         p.unlink(missing_ok=True)
     return stale
-
-
-def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"checkpoint {str(path)!r} does not exist")
-    try:
-        return torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as err:  # a truncated or foreign file: say which, not a pickle trace
-        raise ValueError(f"checkpoint {str(path)!r} cannot be read ({type(err).__name__}: {err})") from None
 
 
 def rng_state() -> dict:

@@ -1,7 +1,8 @@
-"""The training loop: generic over any model that states its nets, losses and visuals.
+"""The training loop: pulls batches from the stream, steps the model, logs to TensorBoard,
+scores the fixed validation set against a nearest-neighbour fill, and checkpoints.
 
-It pulls batches from the stream, steps the model, logs to TensorBoard, scores the fixed
-validation set, and checkpoints. It knows nothing of how pairs are made or what the nets are.
+It drives a ``Pix2PixModel`` (nets, losses and visuals are the model's); what it logs beyond
+its own scalars and image grids comes in through ``callbacks`` (figures live in ``plots``).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import os
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -20,7 +21,7 @@ from omegaconf import OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 from tqdm.auto import tqdm
 
-from ..atomic import atomic_open, atomic_path
+from ..core.atomic import atomic_open, atomic_path
 from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import calibration, masked_rmse
 from ..models import build_model
@@ -29,22 +30,15 @@ from ..models.uncertainty import standard_deviation
 from ..sim.batch import terrain_size
 from ..sim.device import resolve_device
 from ..sim.memory import check_batch_fits
-from .checkpoint import BEST, LATEST, atomic_save, load_checkpoint, remove_stale_temporaries, resolve_resume, rng_state, set_rng_state
+from ..core.torchfile import atomic_save, load_checkpoint
+from .checkpoint import BEST, LATEST, remove_stale_temporaries, resolve_resume, rng_state, set_rng_state
 from .distributed import NullWriter, close_ranks, init_ranks
-from .stream import VALIDATION_SEED_BASE, batch_seed, training_batches, validation_set
+from ..data.seeds import batch_seed
+from ..data.stream import training_batches, validation_set
+from ..models.inputs import model_input
+from .config import RunConfig
 
-FIGURE_SEED = VALIDATION_SEED_BASE + (1 << 20)  # a validation-range seed the validation set does not use
 from .visuals import map_grid
-
-if TYPE_CHECKING:
-    from ..config import RunConfig
-
-
-def model_input(batch: dict[str, torch.Tensor], in_channels: int) -> torch.Tensor:
-    """The network's condition: the scan image, or the scan and its observation mask."""
-    if in_channels == 1:
-        return batch["scan"]
-    return torch.cat([batch["scan"], batch["mask"]], dim=1)
 
 
 def lr_factor(step: int, steps: int, decay_from: float) -> float:
@@ -62,12 +56,14 @@ def predict_in_chunks(model, condition: torch.Tensor, chunk: int = 16) -> tuple[
     return torch.cat([h for h, _ in outs]), log_variance
 
 
-def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
+def train(cfg: RunConfig, run_dir: str | os.PathLike, callbacks: Sequence = ()) -> dict:
     """Train ``cfg.model`` on the stream described by ``cfg``; write everything under ``run_dir``.
 
     Returns a summary: final and best validation RMSE on unobserved cells, the nearest-neighbour
     fill's RMSE on the same set, wall time and paths. Under ``torchrun`` every rank trains on its
     own stream and rank 0 validates, logs and checkpoints (see ``distributed.py``).
+    ``callbacks``: objects whose ``on_finish(writer, model, cfg, device, step)`` runs on rank 0 at the
+    end (``plots.callbacks.PaperFigures`` logs the paper's figures; ``python train.py`` passes it).
     """
     tc = cfg.train
     run_dir = Path(run_dir)
@@ -103,7 +99,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     val = validation_set(sim, tc.val_size if ranks.main else 1, device)
     unobserved = val["mask"] == 0
     nn_rmse = masked_rmse(nearest_fill(val["scan"], val["mask"]), val["target"], unobserved)
-    val_condition = model_input(val, cfg.model.in_channels)
+    val_condition = model_input(val["scan"], val["mask"], cfg.model.in_channels)
 
     writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None) if ranks.main else NullWriter()
     base_lrs = {id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d}
@@ -152,7 +148,7 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
                 g["lr"] = base_lrs[id(opt)] * factor
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items() if k != "step"}
         weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, relief_floor)
-        model.set_input(model_input(batch, cfg.model.in_channels), batch["target"], weight)
+        model.set_input(model_input(batch["scan"], batch["mask"], cfg.model.in_channels), batch["target"], weight)
         model.optimize_parameters()
         t2 = time.perf_counter()
         wait += t1 - t0
@@ -194,7 +190,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
         _write_text(run_dir / f"summary_rank{rank}.json", json.dumps(summary))
         close_ranks(ranks)
         return summary
-    log_paper_figures(writer, model, cfg, device, tc.steps)
+    for callback in callbacks:
+        callback.on_finish(writer, model, cfg, device, tc.steps)
     image_path = image_dir / "validation.png"
     _save_png(map_grid(val["scan"], val["mask"], last_prediction, val["target"]), image_path)
     summary = {
@@ -218,18 +215,6 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike) -> dict:
     _write_text(run_dir / "summary.json", json.dumps(summary, indent=2))
     close_ranks(ranks)
     return summary
-
-
-def log_paper_figures(writer, model, cfg: RunConfig, device: str, step: int) -> None:
-    """The paper's model figures (Figs. 5 and 6) of the final model, into TensorBoard."""
-    from ..export.figures import prediction_figure, reconstruction_3d_figure
-
-    def predictor(condition: torch.Tensor) -> torch.Tensor:
-        return model.predict(condition.to(device))
-
-    sim, channels, seed = cfg.sim(), cfg.model.in_channels, FIGURE_SEED
-    writer.add_figure("figures/fig5_reconstruction_3d", reconstruction_3d_figure(predictor, channels, sim, seed=seed, device=device), step)
-    writer.add_figure("figures/fig6_input_prediction_truth", prediction_figure(predictor, channels, sim, seed=seed, device=device), step)
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -13,8 +13,8 @@ import argparse
 import json
 import sys
 
-from . import __version__
-from .atomic import atomic_open
+from ..core.version import __version__
+from ..core.atomic import atomic_open
 
 EXIT_USAGE = 2
 
@@ -57,7 +57,7 @@ def add_bench(sub) -> None:
 
 
 def cmd_bench(args) -> int:
-    from .bench import format_table, run_benchmarks
+    from ..bench import format_table, run_benchmarks
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -87,7 +87,7 @@ def add_preview(sub) -> None:
 
 
 def cmd_preview(args) -> int:
-    from .export.figures import write_preview
+    from ..plots.figures import write_preview
 
     out = write_preview(args.out, terrain=args.terrain, seed=args.seed, device=args.device, dpi=args.dpi)
     print(f"wrote {out}", file=sys.stderr)
@@ -110,7 +110,7 @@ def add_figures(sub) -> None:
 
 
 def cmd_figures(args) -> int:
-    from .export.figures import write_figures
+    from ..plots.figures import write_figures
 
     written = write_figures(args.out, checkpoint=args.checkpoint, seed=args.seed, device=args.device, dpi=args.dpi)
     for path in written.values():
@@ -141,9 +141,11 @@ def add_export_usd(sub) -> None:
 def cmd_export_usd(args) -> int:
     import copy
 
-    from .export.figures import _check_out, load_predictor, load_terrain_setting, write_usd_figure
-    from .export.usd import check_usd_path, export_usd
-    from .sim import generate_batch, resolve_device
+    from ..compose import load_terrain_setting
+    from ..inference.predictor import load_predictor
+    from ..plots.figures import _check_out, write_usd_figure
+    from ..export.usd import check_usd_path, export_usd
+    from ..sim import generate_batch, resolve_device
 
     out = check_usd_path(args.out)  # fail before any work
     if args.png is not None:
@@ -151,8 +153,8 @@ def cmd_export_usd(args) -> int:
     device = resolve_device(args.device)
     predictor = None
     if args.checkpoint is not None:
-        predictor = load_predictor(args.checkpoint, device)
-        sim = copy.deepcopy(predictor.sim)
+        predictor = load_predictor(None if args.checkpoint == "pretrained" else args.checkpoint, device, tta=False)
+        sim = copy.deepcopy(predictor.sim or load_terrain_setting("octave5"))
         if args.terrain is not None:
             sim.terrain = load_terrain_setting(args.terrain).terrain
     else:
@@ -164,10 +166,8 @@ def cmd_export_usd(args) -> int:
     batch = generate_batch(1, sim, seed=args.seed, device=device)
     kwargs = {}
     if predictor is not None:
-        from .training.loop import model_input
-
-        condition = model_input({"scan": batch.scan, "mask": batch.mask}, predictor.in_channels)
-        kwargs = dict(reconstruction=predictor(condition)[0, 0], target=batch.target[0, 0], reconstruction_cell=sim.data.map_cell)
+        predicted = predictor(batch.scan, batch.mask)
+        kwargs = dict(reconstruction=(predicted[0] if isinstance(predicted, tuple) else predicted)[0, 0], target=batch.target[0, 0], reconstruction_cell=sim.data.map_cell)
     export_usd(out, batch.heights[0], sim.terrain.cell, points=batch.points[0] if args.with_points else None,
                sensor_z=float(batch.sensor_z[0]), **kwargs)
     print(out)
@@ -203,8 +203,8 @@ def add_generate(sub) -> None:
 
 
 def _generate_config(args):
-    from .export.figures import load_terrain_setting
-    from .sim import as_sim_config, lidar_preset
+    from ..compose import load_terrain_setting
+    from ..sim import as_sim_config, lidar_preset
 
     if args.config is not None:
         from omegaconf import OmegaConf
@@ -238,7 +238,7 @@ def _generate_config(args):
 
 
 def cmd_generate(args) -> int:
-    from .export.dataset import write_dataset
+    from ..data.disk import write_dataset
 
     sim = _generate_config(args)
 
@@ -267,7 +267,7 @@ def _noise_levels(value: str) -> list[float]:
 
 
 def _baseline_names(value: str) -> list[str]:
-    from .evaluation.baselines import BASELINES
+    from ..evaluation.baselines import BASELINES
 
     if value.strip() == "none":
         return []
@@ -327,8 +327,9 @@ def add_evaluate(sub) -> None:
 def cmd_evaluate(args) -> int:
     from pathlib import Path
 
-    from .evaluation.baselines import BASELINES
-    from .evaluation.evaluate import DEFAULT_SIZE, QUICK_SIZE, evaluate, format_markdown, format_table, json_ready, load_model_predictor
+    from ..evaluation.baselines import BASELINES
+    from ..evaluation.evaluate import DEFAULT_SIZE, QUICK_SIZE, evaluate, format_markdown, format_table, json_ready
+    from ..inference.predictor import load_predictor
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -340,12 +341,13 @@ def cmd_evaluate(args) -> int:
         raise ValueError(f"--markdown {args.markdown!r}: the folder does not exist")
     model_info = None
     if args.checkpoint is not None or args.pretrained:
-        predictor, model_info = load_model_predictor(args.checkpoint, device=args.device, tta=args.tta)
+        predictor = load_predictor(args.checkpoint, device=args.device, tta=args.tta)
+        model_info = predictor.info
         predictors["model"] = predictor
     if not predictors:
         raise ValueError("nothing to evaluate: --baselines none needs --checkpoint")
     if args.robustness:
-        from .evaluation.robustness import evaluate_robustness, robustness_markdown
+        from ..evaluation.robustness import evaluate_robustness, robustness_markdown
 
         results = evaluate_robustness(predictors, size=size if args.size or args.quick else 32, device=args.device or "cpu", progress=progress)
         text = robustness_markdown(results)
@@ -404,9 +406,9 @@ def cmd_reconstruct(args) -> int:
 
     import numpy as np
 
-    from .evaluation.reconstructor import Reconstructor
-    from .export.figures import save_map_preview
-    from .pointclouds import apply_transform, read_point_cloud, transform_matrix
+    from ..inference.reconstructor import Reconstructor
+    from ..plots.figures import save_map_preview
+    from ..inference.pointclouds import apply_transform, read_point_cloud, transform_matrix
 
     source = Path(args.file)
     out = Path(args.out) if args.out else source.with_suffix(".npz")
@@ -443,9 +445,9 @@ def add_export_onnx(sub) -> None:
 
 
 def cmd_export_onnx(args) -> int:
-    from . import generate_batch
-    from .evaluation.reconstructor import Reconstructor
-    from .export.onnx import check_onnx, export_onnx
+    from .. import generate_batch
+    from ..inference.reconstructor import Reconstructor
+    from ..inference.onnx import check_onnx, export_onnx
 
     rec = Reconstructor.load(args.model, device="cpu")
     path = export_onnx(rec.generator, args.out, rec.model_config.in_channels, args.map_size, uncertainty=rec.has_uncertainty)
@@ -475,15 +477,15 @@ def add_package_model(sub) -> None:
 def cmd_package_model(args) -> int:
     from pathlib import Path
 
-    from .evaluation.reconstructor import Reconstructor
+    from ..inference.reconstructor import Reconstructor
 
     out = Path(args.out)
     if not out.resolve().parent.is_dir():
         raise ValueError(f"--out {str(out)!r}: the folder does not exist")
     rec = Reconstructor.load(args.checkpoint, device=args.device)
     if args.calibrate and rec.has_uncertainty:
-        from .evaluation.calibrate import fit_sigma_scale
-        from .sim.batch import as_sim_config
+        from ..evaluation.calibrate import fit_sigma_scale
+        from ..sim.batch import as_sim_config
 
         run = rec.meta.get("config") or {}
         if not all(key in run for key in ("terrain", "lidar", "data")):
@@ -496,8 +498,28 @@ def cmd_package_model(args) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------ train
+def add_train(sub) -> None:
+    sub.add_parser("train", help="train a model: Hydra overrides as for python train.py (warp-terrain train --help)",
+                   description="Hydra overrides follow, e.g. warp-terrain train terrain=octave3 train.steps=500; "
+                               "the same as python train.py in a source checkout.", add_help=False)
+
+
+def run_train(args: list[str]) -> int:
+    """``warp-terrain train OVERRIDES``: Hydra parses the rest of the command line."""
+    from .train import main as train_main
+
+    saved = sys.argv
+    sys.argv = ["warp-terrain train", *args]
+    try:
+        train_main()
+    finally:
+        sys.argv = saved
+    return 0
+
+
 # ------------------------------------------------------------------------------ entry point
-SUBCOMMANDS = (add_bench, add_preview, add_figures, add_export_usd, add_generate, add_evaluate, add_reconstruct, add_export_onnx,
+SUBCOMMANDS = (add_train, add_bench, add_preview, add_figures, add_export_usd, add_generate, add_evaluate, add_reconstruct, add_export_onnx,
                add_package_model)
 
 
@@ -515,6 +537,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 2 bad arguments)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "train":
+        return run_train(argv[1:])
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..core.torchfile import atomic_save
 from ..models import ModelConfig, build_generator
 from ..models.uncertainty import split_output
-from ..pointclouds import check_points
+from .pointclouds import check_points
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 
@@ -86,8 +87,6 @@ class Reconstructor:
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
-        from ..training.checkpoint import atomic_save
-
         weights = {k: (v.half() if half and v.is_floating_point() else v).cpu() for k, v in self.generator.state_dict().items()}
         atomic_save({"netG": weights, "model_config": self.model_config.to_dict(), "meta": self.meta}, path)
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..atomic import atomic_path
+from ..core.atomic import atomic_path
 from ..models.uncertainty import split_output
 
 

@@ -8,7 +8,7 @@ For people who want a frozen benchmark instead of the endless stream. A dataset 
     ...
 
 Shard ``k`` holds ``generate_batch(n_k, sim, seed=shard_seed(seed, k))`` with
-``shard_seed(seed, k) = batch_seed(seed, 0, k)`` (``warp_terrain.training.stream``) and
+``shard_seed(seed, k) = batch_seed(seed, 0, k)`` (``warp_terrain.data.seeds``) and
 ``n_k = min(shard_size, count - k * shard_size)``: it is exactly batch ``k`` of rank 0 of the
 training stream with ``train.seed = seed`` and ``train.batch_size = shard_size`` (sample ``b`` of a
 batch depends only on ``(sim, seed, b)``, so a shorter last shard is the start of that batch).
@@ -31,18 +31,24 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import multiprocessing
 import os
 import zipfile
 from collections import OrderedDict
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
+import warp as wp
 from torch.utils.data import Dataset
 
-from ..atomic import atomic_open
+from ..core.atomic import atomic_open
+from ..core.version import __version__
+from ..sim import as_sim_config, generate_batch, resolve_device
+from .seeds import shard_seed
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "MANIFEST", "DatasetError", "DiskPairs", "shard_name", "shard_seed", "write_dataset"]
 
@@ -52,7 +58,7 @@ MANIFEST = "manifest.json"
 MAPS = ("scan", "mask", "target")
 SEED_RULE = (
     "shard k holds generate_batch(n_k, sim, seed=batch_seed(seed, 0, k)) with n_k = min(shard_size, count - k*shard_size) "
-    "(batch_seed from warp_terrain.training.stream): batch k of rank 0 of the training stream with train.seed=seed"
+    "(batch_seed from warp_terrain.data.stream): batch k of rank 0 of the training stream with train.seed=seed"
 )
 
 
@@ -62,13 +68,6 @@ class DatasetError(ValueError):
 
 def shard_name(k: int) -> str:
     return f"shard-{k:05d}.npz"
-
-
-def shard_seed(seed: int, k: int) -> int:
-    """The ``generate_batch`` seed of shard ``k``: the training stream's ``batch_seed(seed, 0, k)``."""
-    from ..training.stream import batch_seed
-
-    return batch_seed(int(seed), 0, int(k))
 
 
 # ------------------------------------------------------------------------------ writing
@@ -115,8 +114,6 @@ def _prepare_folder(out: Path, overwrite: bool) -> None:
 
 def _shard(sim, n: int, s_seed: int, with_points: bool, device: str) -> tuple[bytes, dict]:
     """One shard's ``.npz`` bytes and array shapes (top level: worker processes call it)."""
-    from ..sim import generate_batch
-
     b = generate_batch(n, sim, seed=s_seed, device=device)
     arrays = {name: getattr(b, name).detach().to("cpu", torch.float32).numpy() for name in MAPS}
     if with_points:
@@ -143,11 +140,6 @@ def write_dataset(out, count: int, sim=None, seed: int = 0, shard_size: int = 64
     shards in that many processes (CPU only: a Warp CPU launch runs on one thread); the files
     are the same byte for byte.
     """
-    import warp as wp
-
-    from .. import __version__
-    from ..sim import as_sim_config, resolve_device
-
     count = _positive_int("count", count)
     shard_size = _positive_int("shard_size", shard_size)
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
@@ -169,9 +161,6 @@ def write_dataset(out, count: int, sim=None, seed: int = 0, shard_size: int = 64
     jobs = [(sim, n, s_seed, with_points, device) for _k, _first, n, s_seed in plan]
     pool = None
     if workers and device == "cpu" and len(plan) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         pool = ProcessPoolExecutor(max_workers=int(workers), mp_context=multiprocessing.get_context("spawn"))
         made = pool.map(_shard, *zip(*jobs))  # in shard order
     else:
@@ -266,7 +255,6 @@ class DiskPairs(Dataset):
         self.map_size = int(m["arrays"]["scan"]["sample_shape"][-1])
         if self.with_points and not m.get("with_points"):
             raise DatasetError(f"dataset {str(self.folder)!r}: written without points (generate --with-points)")
-        from ..sim import as_sim_config
 
         try:
             self.sim = as_sim_config(m["sim"])

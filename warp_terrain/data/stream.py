@@ -14,26 +14,17 @@ On CUDA generation stays in the training process, on the device, zero-copy.
 
 from __future__ import annotations
 
-import hashlib
+import warnings
 from collections.abc import Iterator
+from dataclasses import asdict
 
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from ..sim.batch import SimConfig, generate_batch
+from .disk import DiskPairs
+from .seeds import batch_seed, validation_seed
 
-VALIDATION_SEED_BASE = 1 << 30
-
-
-def batch_seed(seed: int, rank: int, step: int) -> int:
-    """The generator seed of training batch ``step`` on ``rank`` (in ``[0, 2**30)``)."""
-    digest = hashlib.blake2b(f"{seed}/{rank}/{step}".encode(), digest_size=8).digest()
-    return int.from_bytes(digest, "little") % VALIDATION_SEED_BASE
-
-
-def validation_seed(index: int) -> int:
-    """The generator seed of validation chunk ``index`` (never a training seed)."""
-    return VALIDATION_SEED_BASE + index
 
 
 def make_pair(sim: SimConfig, batch_size: int, seed: int, device: str) -> dict[str, torch.Tensor]:
@@ -92,11 +83,6 @@ def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, star
 
 
 def _dataset_batches(sim: SimConfig, dataset: str, batch_size: int, seed: int, rank: int, start: int, stop: int):
-    import warnings
-    from dataclasses import asdict
-
-    from ..export.dataset import DiskPairs
-
     try:
         pairs = DiskPairs(dataset)
     except ValueError as err:

@@ -51,11 +51,11 @@ import numpy as np
 import torch
 import warp as wp
 
-from . import __version__
-from .sim import SimConfig, TerrainConfig, generate_batch, lidar_preset, resolve_device
-from .sim.batch import make_maps, make_terrains, scan_terrains, terrain_size
-from .sim.scan import trace
-from .sim.terrain import make_heightfields
+from ..core.version import __version__
+from ..sim import SimConfig, TerrainConfig, generate_batch, lidar_preset, resolve_device
+from ..sim.batch import make_maps, make_terrains, scan_terrains, terrain_size
+from ..sim.scan import trace
+from ..sim.terrain import make_heightfields
 
 SEED = 12345
 
@@ -208,7 +208,7 @@ def bench_noise(device=None, quick: bool = False, repeats: int | None = None, an
 
 def _noise_processes(batch: int, size: int, cfg: TerrainConfig, single: np.ndarray, repeats: int) -> dict:
     """The same heightfields split by samples over one process per core (``sim/parallel.py``)."""
-    from .sim.parallel import ProcessHeightfields
+    from ..sim.parallel import ProcessHeightfields
 
     processes = min(os.cpu_count() or 1, 8)
     with ProcessHeightfields(batch, size, cfg, seed=SEED, processes=processes) as terrains:
@@ -312,7 +312,7 @@ def bench_rays(device=None, quick: bool = False, repeats: int | None = None, anc
 
 def _rays_processes(heights: np.ndarray, cell: float, lidar, single: np.ndarray, repeats: int) -> dict:
     """The same scan split by azimuth columns over one process per core (``sim/parallel.py``)."""
-    from .sim.parallel import ProcessTracer
+    from ..sim.parallel import ProcessTracer
 
     processes = min(os.cpu_count() or 1, 8)
     with ProcessTracer(heights, cell, lidar, seed=SEED, processes=processes, reach=0.0) as tracer:
@@ -488,8 +488,8 @@ def bench_stream(device=None, quick: bool = False, batches: Iterable[int] | None
 def bench_loader(device=None, quick: bool = False, workers: Iterable[int] = (0, 1, 2), batch: int = 8) -> dict:
     """The training stream (default data, batch 8) as training pulls it: in-process and with
     generator worker processes (CPU only; on CUDA generation stays in-process)."""
-    from .config import RunConfig
-    from .training.stream import training_batches
+    from ..training.config import RunConfig
+    from ..data.stream import training_batches
 
     device = resolve_device(device)
     sim = RunConfig().sim()
@@ -510,7 +510,7 @@ def bench_loader(device=None, quick: bool = False, workers: Iterable[int] = (0, 
 
 # ------------------------------------------------------------------------------- train
 def _train_model_config(quick: bool):
-    from .models import ModelConfig
+    from ..models import ModelConfig
 
     # the paper's model: Table 2's generator (ngf 64) and the 70x70 PatchGAN; --quick: 8 filters
     return ModelConfig(name="paper", ngf=8, ndf=8) if quick else ModelConfig(name="paper")
@@ -518,14 +518,14 @@ def _train_model_config(quick: bool):
 
 def _fixed_pair(batch: int, device: str) -> dict[str, torch.Tensor]:
     """One training batch of the default stream, generated once (its time excluded)."""
-    from .config import RunConfig
-    from .training.stream import make_pair
+    from ..training.config import RunConfig
+    from ..data.stream import make_pair
 
     return make_pair(RunConfig().sim(), batch, SEED & 0x7FFFFFFF, device)
 
 
 def _build_train_model(model_cfg, device: str, channels_last: bool = False):
-    from .models import build_model
+    from ..models import build_model
 
     torch.manual_seed(SEED)
     model = build_model(model_cfg).to(device)
@@ -537,10 +537,10 @@ def _build_train_model(model_cfg, device: str, channels_last: bool = False):
 
 
 def _train_inputs(pair: dict, in_channels: int, device: str, channels_last: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    from .training.loop import model_input
+    from ..models.inputs import model_input
 
     pair = {k: v.to(device) for k, v in pair.items() if k != "step"}
-    x, y = model_input(pair, in_channels), pair["target"]
+    x, y = model_input(pair["scan"], pair["mask"], in_channels), pair["target"]
     if channels_last:
         x, y = x.contiguous(memory_format=torch.channels_last), y.contiguous(memory_format=torch.channels_last)
     return x, y
@@ -562,9 +562,9 @@ def _train_fixed(model_cfg, batch: int, device: str, repeats: int, channels_last
 def _train_stream(model_cfg, batch: int, device: str, steps: int) -> dict:
     """The same steps pulling their batches from the training stream (``workers=0``: generated
     in this process, as on CUDA): ``data_wait_share`` = time in ``next(batches)`` / step time."""
-    from .config import RunConfig
-    from .training.loop import model_input
-    from .training.stream import training_batches
+    from ..training.config import RunConfig
+    from ..models.inputs import model_input
+    from ..data.stream import training_batches
 
     model = _build_train_model(model_cfg, device)
     batches = training_batches(RunConfig().sim(), batch, SEED, 0, 0, steps + 1, device, 0)
@@ -575,7 +575,7 @@ def _train_stream(model_cfg, batch: int, device: str, steps: int) -> dict:
         pair = next(batches)
         t1 = time.perf_counter()
         pair = {k: v.to(device, non_blocking=True) for k, v in pair.items() if k != "step"}
-        model.set_input(model_input(pair, model_cfg.in_channels), pair["target"])
+        model.set_input(model_input(pair["scan"], pair["mask"], model_cfg.in_channels), pair["target"])
         model.optimize_parameters()
         _sync(device)
         return t1 - t0, time.perf_counter() - t0
@@ -594,7 +594,7 @@ def _compiled_child(spec_json: str) -> None:
     """Runs in a fresh interpreter (see :func:`_train_compiled`): the fixed-batch steps with
     ``torch.compile``'d nets; prints one JSON line when compiled and one when done."""
     import warp_terrain  # noqa: F401  (Warp's log level)
-    from .models import ModelConfig
+    from ..models import ModelConfig
 
     spec = json.loads(spec_json)
     device, batch, repeats = spec["device"], int(spec["batch"]), int(spec["repeats"])
@@ -698,7 +698,7 @@ def _run_compiled_child(model_cfg, batch: int, device: str, repeats: int, plain_
 def _train_threads(device: str) -> int:
     """torch threads as training uses them by default: on the CPU, the cores the default
     generator worker process leaves (``train.threads=0``, ``train.workers=1``)."""
-    from .training.config import TrainConfig
+    from ..training.config import TrainConfig
 
     if not device.startswith("cpu"):
         return torch.get_num_threads()
@@ -766,7 +766,7 @@ def _onnx_session(generator: torch.nn.Module, in_channels: int, map_size: int, t
     try:
         import onnxruntime as ort
 
-        from .export.onnx import export_onnx
+        from ..inference.onnx import export_onnx
     except (ImportError, OSError) as err:
         return {}, _unavailable("onnxruntime", err)
     try:
@@ -795,8 +795,8 @@ def bench_infer(device=None, quick: bool = False, repeats: int | None = None) ->
     once with torch's thread count (ONNX Runtime's intra-op threads the same) and, if that is
     more than one, once with one thread (``quick``: one thread only).
     """
-    from .evaluation.reconstructor import Reconstructor
-    from .sim.projection import project_points
+    from ..inference.reconstructor import Reconstructor
+    from ..sim.projection import project_points
 
     device = resolve_device(device)
     repeats = repeats or (2 if quick else 10)

@@ -1,7 +1,7 @@
 """Figures of simulated samples: terrain, LIDAR points, scan image, mask and ground truth.
 
-:func:`write_preview` renders one generated sample per terrain setting (the YAML files in
-``conf/terrain/``) as one row of five panels, all heights in the sensor frame (metres) on one
+:func:`write_preview` renders one generated sample per terrain setting (the presets in
+``sim/presets.py``, or a terrain YAML by path) as one row of five panels, all heights in the sensor frame (metres) on one
 colour scale per row, x/y in metres with x to the right and y up:
 
 1. the terrain heightfield, with the elevation map's square outlined and the sensor marked
@@ -21,15 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_open
+from ..compose import load_terrain_setting, terrain_setting_names
+from ..core.atomic import atomic_open
+from ..inference.predictor import load_predictor
 from ..sim import SimConfig, generate_batch, resolve_device
 
 __all__ = [
-    "load_terrain_setting",
     "preview_figure",
     "save_figure",
-    "terrain_config_dir",
-    "terrain_setting_names",
     "write_preview",
 ]
 
@@ -43,49 +42,6 @@ PANEL_TITLES = (
 
 
 # ------------------------------------------------------------------------------ settings
-def terrain_config_dir() -> Path:
-    """The folder of terrain settings: the project's ``conf/terrain``, else ``./conf/terrain``."""
-    for candidate in (Path(__file__).resolve().parents[2] / "conf" / "terrain", Path.cwd() / "conf" / "terrain"):
-        if candidate.is_dir():
-            return candidate
-    raise ValueError("cannot find the terrain settings folder conf/terrain (looked beside the package and in the current folder)")
-
-
-def terrain_setting_names() -> list[str]:
-    """Names of the terrain settings in ``conf/terrain/*.yaml``, sorted."""
-    return sorted(p.stem for p in terrain_config_dir().glob("*.yaml"))
-
-
-def load_terrain_setting(name: str, augment: bool = False) -> SimConfig:
-    """A validated ``SimConfig`` with the terrain setting ``name`` (or a path to a terrain YAML)
-    merged under ``terrain`` into the structured defaults; ``data.augment`` set to ``augment``."""
-    from omegaconf import OmegaConf
-    from omegaconf.errors import OmegaConfBaseException
-
-    path = Path(name)
-    if path.suffix in (".yaml", ".yml"):
-        if not path.is_file():
-            raise ValueError(f"terrain={name!r}: no such file")
-    else:
-        names = terrain_setting_names()
-        if name not in names:
-            raise ValueError(f"terrain={name!r}: unknown terrain setting; choose from {', '.join(names)}, all, or a .yaml path")
-        path = terrain_config_dir() / f"{name}.yaml"
-    try:
-        merged = OmegaConf.merge(
-            OmegaConf.structured(SimConfig),
-            {"terrain": OmegaConf.load(path), "data": {"augment": bool(augment)}},
-        )
-        sim = OmegaConf.to_object(merged)
-    except (OmegaConfBaseException, OSError) as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise ValueError(f"terrain={name!r}: cannot load {path}: {first}") from None
-    except Exception as e:  # YAML syntax errors and the like
-        raise ValueError(f"terrain={name!r}: cannot read {path}: {type(e).__name__}") from None
-    sim.validate()
-    return sim
-
-
 def _resolve_terrains(terrain) -> list[str]:
     if isinstance(terrain, str):
         names = [t.strip() for t in terrain.split(",") if t.strip()]
@@ -98,7 +54,7 @@ def _resolve_terrains(terrain) -> list[str]:
             raise ValueError(f"terrain={terrain!r}: 'all' cannot be combined with other names")
         names = terrain_setting_names()
         if not names:
-            raise ValueError(f"no terrain settings found in {terrain_config_dir()}")
+            raise ValueError("no terrain settings registered")
     return names
 
 
@@ -268,8 +224,6 @@ MODEL_FIGURES = ("fig5", "fig6", "fig7", "fig8")
 __all__ += [
     "FIGURE_FILES",
     "MODEL_FIGURES",
-    "Predictor",
-    "load_predictor",
     "noise_figure",
     "octaves_figure",
     "prediction_figure",
@@ -380,18 +334,14 @@ def noise_figure(noise=(0.0, 0.05, 0.10), seed: int = 0, device=None, terrain: s
     return fig
 
 
-def _predict(predictor, in_channels: int, sim: SimConfig, count: int, seed: int, device: str) -> dict:
-    """Generate ``count`` samples and run ``predictor`` on their condition; numpy maps."""
+def _predict(predictor, sim: SimConfig, count: int, seed: int, device: str) -> dict:
+    """Generate ``count`` samples and run ``predictor(scan, mask)`` on them; numpy maps."""
     import torch
 
-    from ..training.loop import model_input
-
     b = generate_batch(count, sim, seed=seed, device=device)
-    pair = {"scan": b.scan, "mask": b.mask, "target": b.target}
-    condition = model_input(pair, int(in_channels))
     with torch.no_grad():
-        prediction = predictor(condition)
-    prediction = torch.as_tensor(prediction)
+        prediction = predictor(b.scan, b.mask)
+    prediction = torch.as_tensor(prediction[0] if isinstance(prediction, tuple) else prediction)
     if tuple(prediction.shape) != tuple(b.target.shape):
         raise ValueError(f"predictor: returned shape {tuple(prediction.shape)}, expected {tuple(b.target.shape)}")
     return {
@@ -406,12 +356,12 @@ def _rmse(a, b, where) -> float:
     return float(np.sqrt(np.mean((a[where] - b[where]) ** 2))) if where.any() else float("nan")
 
 
-def reconstruction_3d_figure(predictor, in_channels: int, sim: SimConfig, seed: int = 0, device=None, cmap: str = "terrain"):
+def reconstruction_3d_figure(predictor, sim: SimConfig, seed: int = 0, device=None, cmap: str = "terrain"):
     """Fig. 5: the original (ground-truth) and the reconstructed terrain as 3-D surfaces."""
     seed = _check_seed(seed)
     device = resolve_device(device)
     sim = _fixed(sim)
-    s = _predict(predictor, in_channels, sim, 1, seed, device)
+    s = _predict(predictor, sim, 1, seed, device)
     S, mc = sim.data.map_size, sim.data.map_cell
     c = (np.arange(S) - 0.5 * (S - 1)) * mc
     X, Y = np.meshgrid(c, c, indexing="ij")
@@ -435,7 +385,7 @@ def reconstruction_3d_figure(predictor, in_channels: int, sim: SimConfig, seed: 
     return fig
 
 
-def prediction_figure(predictor, in_channels: int, sim: SimConfig, samples: int = 3, seed: int = 0, device=None,
+def prediction_figure(predictor, sim: SimConfig, samples: int = 3, seed: int = 0, device=None,
                       title: str = "Fig. 6: GAN prediction on test examples", cmap: str = "viridis"):
     """Figs. 6-8: rows of input (scan image) | prediction | ground truth, one colour scale per row,
     with the RMSE of the prediction on the cells the LIDAR did not see."""
@@ -444,7 +394,7 @@ def prediction_figure(predictor, in_channels: int, sim: SimConfig, samples: int 
         raise ValueError(f"samples={samples!r}: must be an integer >= 1")
     device = resolve_device(device)
     sim = _fixed(sim)
-    s = _predict(predictor, in_channels, sim, int(samples), seed, device)
+    s = _predict(predictor, sim, int(samples), seed, device)
     S, mc = sim.data.map_size, sim.data.map_cell
     ext = _grid_extent(S, mc)
     fig = _new_figure((11.0, 3.3 * samples + 0.6))
@@ -470,38 +420,6 @@ def prediction_figure(predictor, in_channels: int, sim: SimConfig, samples: int 
     return fig
 
 
-class Predictor:
-    """A trained model as a figure predictor: ``predictor(condition) -> (B, 1, S, S)``, with the
-    ``in_channels`` it expects and the ``sim`` (terrain, lidar, data) it was trained on."""
-
-    def __init__(self, model, in_channels: int, sim: SimConfig, device: str):
-        self.model, self.in_channels, self.sim, self.device = model, int(in_channels), sim, device
-
-    def __call__(self, condition):
-        return self.model.predict(condition.to(self.model.device))
-
-
-def load_predictor(checkpoint, device=None) -> Predictor:
-    """The generator of a training checkpoint (``checkpoints/latest.pt`` / ``best.pt``) as a
-    :class:`Predictor`; the checkpoint's ``config`` gives the model and the data it was trained on."""
-    from ..models import Pix2PixModel
-    from ..sim import as_sim_config
-    from ..training.checkpoint import load_checkpoint
-
-    state = load_checkpoint(checkpoint)
-    if not isinstance(state, dict) or "model" not in state:
-        raise ValueError(f"checkpoint {str(checkpoint)!r}: not a training checkpoint (no 'model' entry)")
-    device = resolve_device(device)
-    try:
-        model = Pix2PixModel.from_state_dict(state["model"], device=device)
-    except (KeyError, RuntimeError, TypeError) as err:
-        raise ValueError(f"checkpoint {str(checkpoint)!r}: cannot rebuild the model ({type(err).__name__}: {err})") from None
-    model.eval()
-    config = state.get("config") or {}
-    sim = as_sim_config({k: config[k] for k in ("terrain", "lidar", "data") if k in config})
-    return Predictor(model, model.cfg.in_channels, sim, device)
-
-
 def _obstacle_sim(base: SimConfig, setting: str) -> SimConfig:
     """``base`` (a model's lidar and maps) with the terrain setting ``setting``."""
     import copy
@@ -515,7 +433,8 @@ def _obstacle_sim(base: SimConfig, setting: str) -> SimConfig:
 def write_figures(out_dir, checkpoint=None, seed: int = 0, device=None, dpi: int = 80, predictor=None) -> dict[str, Path]:
     """Write the paper's figure kinds as PNGs into ``out_dir`` (created if missing); returns
     ``{"fig1": path, ...}``. Figs. 1 and 3 always; Figs. 5-8 (they need a model) with a
-    ``checkpoint`` (or a ready ``predictor``, a :class:`Predictor`). Each PNG is written atomically."""
+    ``checkpoint`` (a model file; ``"pretrained"`` for the shipped model) or a ready ``predictor``
+    (``inference.Predictor``, which knows the data it was trained on). Each PNG is written atomically."""
     seed = _check_seed(seed)
     if isinstance(dpi, bool) or not isinstance(dpi, (int, np.integer)) or not 10 <= dpi <= 600:
         raise ValueError(f"dpi={dpi!r}: must be an integer in [10, 600]")
@@ -524,7 +443,7 @@ def write_figures(out_dir, checkpoint=None, seed: int = 0, device=None, dpi: int
         raise ValueError(f"out={str(out_dir)!r}: is a file, not a folder")
     device = resolve_device(device)
     if predictor is None and checkpoint is not None:
-        predictor = load_predictor(checkpoint, device)  # fails early on a bad checkpoint
+        predictor = load_predictor(None if checkpoint == "pretrained" else checkpoint, device, tta=False)  # fails early on a bad file
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -534,13 +453,13 @@ def write_figures(out_dir, checkpoint=None, seed: int = 0, device=None, dpi: int
         "fig3": lambda: noise_figure(seed=seed, device=device),
     }
     if predictor is not None:
-        p, ch, sim = predictor, predictor.in_channels, predictor.sim
+        p, sim = predictor, predictor.sim or SimConfig()
         figures.update({
-            "fig5": lambda: reconstruction_3d_figure(p, ch, sim, seed=seed, device=device),
-            "fig6": lambda: prediction_figure(p, ch, sim, seed=seed, device=device),
-            "fig7": lambda: prediction_figure(p, ch, _obstacle_sim(sim, "flat_cylinders"), samples=2, seed=seed, device=device,
+            "fig5": lambda: reconstruction_3d_figure(p, sim, seed=seed, device=device),
+            "fig6": lambda: prediction_figure(p, sim, seed=seed, device=device),
+            "fig7": lambda: prediction_figure(p, _obstacle_sim(sim, "flat_cylinders"), samples=2, seed=seed, device=device,
                                               title="Fig. 7: obstacle prediction on a flat surface"),
-            "fig8": lambda: prediction_figure(p, ch, _obstacle_sim(sim, "negative_obstacles"), samples=2, seed=seed, device=device,
+            "fig8": lambda: prediction_figure(p, _obstacle_sim(sim, "negative_obstacles"), samples=2, seed=seed, device=device,
                                               title="Fig. 8: negative obstacle prediction"),
         })
     written = {}

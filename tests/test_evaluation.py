@@ -12,20 +12,18 @@ from scipy import ndimage
 from warp_terrain.cli import main
 from warp_terrain.evaluation import (
     BASELINES,
+    TEST_SEED_BASE,
+    bare_config,
     error_metrics,
+    eval_seeds,
+    json_ready,
+    make_eval_set,
     masked_mae,
     masked_rmse,
     nearest_fill,
     obstacle_iou,
     pit_recall,
     range_cells,
-)
-from warp_terrain.evaluation.evaluate import (
-    TEST_SEED_BASE,
-    bare_config,
-    eval_seeds,
-    json_ready,
-    make_eval_set,
     setting_config,
 )
 from warp_terrain.sim import generate_batch

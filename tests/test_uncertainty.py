@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import warp_terrain as wt
-from warp_terrain.evaluation.evaluate import evaluate, format_table
+from warp_terrain.evaluation import evaluate, format_table
 from warp_terrain.evaluation.metrics import calibration
 from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.inference.onnx import check_onnx, export_onnx

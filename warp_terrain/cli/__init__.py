@@ -328,7 +328,7 @@ def cmd_evaluate(args) -> int:
     from pathlib import Path
 
     from ..evaluation.baselines import BASELINES
-    from ..evaluation.evaluate import DEFAULT_SIZE, QUICK_SIZE, evaluate, format_markdown, format_table, json_ready
+    from ..evaluation import DEFAULT_SIZE, QUICK_SIZE, evaluate, format_markdown, format_table, json_ready
     from ..inference.predictor import load_predictor
 
     def progress(line: str) -> None:
@@ -356,8 +356,13 @@ def cmd_evaluate(args) -> int:
                 f.write(text)
         print(json.dumps(json_ready(results), indent=2, allow_nan=False) if args.json else text)
         return 0
+    on_set = None
+    if args.figures is not None:
+        from ..plots.evaluation import figure_writer
+
+        on_set = figure_writer(args.figures, progress=progress)
     results = evaluate(predictors, settings=args.settings, noise=args.noise, size=size, lidar=args.lidar,
-                       device=args.device, figures=args.figures, progress=progress)
+                       device=args.device, on_set=on_set, progress=progress)
     if model_info is not None:
         results["model"] = model_info
     if args.markdown is not None:

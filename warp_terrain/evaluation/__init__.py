@@ -1,8 +1,17 @@
 """Evaluation: metrics in metres, classical fills to beat, and fixed test sets to score them on.
 
-The test sets and ``evaluate`` (``warp-terrain evaluate``) live in
-``warp_terrain.evaluation.evaluate``; import them from there (the training loop imports this
-package for its metrics and need not load them).
+Modules:
+
+- ``metrics``: RMSE/MAE on masks, the in-range disc, obstacle IoU, pit recall, calibration;
+- ``baselines``: the classical fills (``BASELINES``), each a predictor ``f(scan, mask)``;
+- ``testsets``: the fixed test sets (``make_eval_set``, ``EvalSet``) and their seeds;
+- ``scoring``: ``evaluate`` (``warp-terrain evaluate``), every predictor on every test set;
+- ``report``: the results as text or Markdown tables (``format_table``, ``format_markdown``)
+  and strict JSON (``json_ready``);
+- ``robustness``: sets outside the training ranges and real terrain (``--robustness``);
+- ``calibrate``: the sigma scale of a model's uncertainty head.
+
+The figures of an evaluation live above this layer, in ``warp_terrain.plots.evaluation``.
 """
 
 from .baselines import (
@@ -15,12 +24,43 @@ from .baselines import (
     telea_fill,
 )
 from .metrics import error_metrics, masked_mae, masked_rmse, obstacle_iou, pit_recall, range_cells
+from .report import format_markdown, format_table, json_ready
+from .scoring import PredictorFn, evaluate, run_predictor, score
+from .testsets import (
+    CHUNK,
+    DEFAULT_NOISE,
+    DEFAULT_SETTINGS,
+    DEFAULT_SIZE,
+    QUICK_SIZE,
+    TEST_SEED_BASE,
+    EvalSet,
+    bare_config,
+    eval_seeds,
+    make_eval_set,
+    setting_config,
+    setting_name,
+)
 
 __all__ = [
     "BASELINES",
+    "CHUNK",
+    "DEFAULT_NOISE",
+    "DEFAULT_SETTINGS",
+    "DEFAULT_SIZE",
+    "QUICK_SIZE",
+    "TEST_SEED_BASE",
+    "EvalSet",
+    "PredictorFn",
+    "bare_config",
     "biharmonic_fill",
     "error_metrics",
+    "eval_seeds",
+    "evaluate",
+    "format_markdown",
+    "format_table",
+    "json_ready",
     "linear_fill",
+    "make_eval_set",
     "masked_mae",
     "masked_rmse",
     "navier_stokes_fill",
@@ -29,5 +69,9 @@ __all__ = [
     "pit_recall",
     "plane_fill",
     "range_cells",
+    "run_predictor",
+    "score",
+    "setting_config",
+    "setting_name",
     "telea_fill",
 ]

@@ -49,9 +49,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 import torch
 from scipy import ndimage
+from scipy.interpolate import LinearNDInterpolator
+from scipy.linalg import lstsq
+from scipy.spatial import QhullError
+from skimage.restoration import inpaint_biharmonic
 from threadpoolctl import threadpool_limits
 
 __all__ = [
@@ -127,9 +132,6 @@ def _nearest(z: np.ndarray, known: np.ndarray) -> np.ndarray:
 def _linear(z: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Piecewise-linear interpolation over the Delaunay triangulation of the observed cell
     centres (``scipy.interpolate.LinearNDInterpolator``); nearest outside their convex hull."""
-    from scipy.interpolate import LinearNDInterpolator
-    from scipy.spatial import QhullError
-
     nearest = _nearest2d(z, known)
     if known.sum() < 3:
         return nearest
@@ -147,14 +149,10 @@ def _linear(z: np.ndarray, known: np.ndarray) -> np.ndarray:
 
 def _biharmonic(z: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Biharmonic inpainting of the unobserved cells (``skimage.restoration.inpaint_biharmonic``)."""
-    from skimage.restoration import inpaint_biharmonic
-
     return inpaint_biharmonic(np.where(known, z, 0.0), ~known)
 
 
 def _cv2_inpaint(z: np.ndarray, known: np.ndarray, flags: int, radius: float) -> np.ndarray:
-    import cv2
-
     lo = float(z[known].min())
     span = max(float(z[known].max()) - lo, CV_MIN_SPAN)
     scale = CV_SCALE / span
@@ -168,23 +166,17 @@ def _cv2_inpaint(z: np.ndarray, known: np.ndarray, flags: int, radius: float) ->
 
 def _telea(z: np.ndarray, known: np.ndarray) -> np.ndarray:
     """OpenCV's fast-marching inpainting (Telea 2004; ``cv2.INPAINT_TELEA``)."""
-    import cv2
-
     return _cv2_inpaint(z, known, cv2.INPAINT_TELEA, INPAINT_RADIUS)
 
 
 def _navier_stokes(z: np.ndarray, known: np.ndarray) -> np.ndarray:
     """OpenCV's Navier-Stokes inpainting (Bertalmio et al. 2001; ``cv2.INPAINT_NS``)."""
-    import cv2
-
     return _cv2_inpaint(z, known, cv2.INPAINT_NS, INPAINT_RADIUS)
 
 
 def _plane(z: np.ndarray, known: np.ndarray) -> np.ndarray:
     """The least-squares plane ``z = a i + b j + c`` through the observed cells
     (``scipy.linalg.lstsq``); nearest with fewer than three observed cells."""
-    from scipy.linalg import lstsq
-
     if known.sum() < 3:
         return _nearest2d(z, known)
     ii, jj = np.nonzero(known)

@@ -7,7 +7,7 @@ orientations, errs less, so its raw sigma is too large. One factor ``k`` fixes t
 minimises the Gaussian negative log-likelihood of those errors (Laves et al., 2020, "Well-
 calibrated regression uncertainty in medical imaging with deep learning"). The pairs come from
 validation seeds beyond those training validates on, so neither training nor the test sets
-(``evaluation.evaluate``) see them.
+(``evaluation.testsets``) see them.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ matplotlib's hillshading example). Patches are scaled down uniformly, horizontal
 vertically by the same factor, so slopes stay those of the real landscape: one DEM pixel becomes
 ``dem_pixel`` metres (default 1 m), and heights shrink by ``dem_pixel / 90``. Patches are read
 with bilinear interpolation onto the simulator's terrain grid, so ridges and valleys are real
-shapes no fBm produced. Everything else (the scan, the maps, the metrics) is as in ``evaluate``.
+shapes no fBm produced. Everything else (the scan, the maps, the metrics) is as in ``scoring.evaluate``.
 """
 
 from __future__ import annotations
@@ -16,19 +16,20 @@ import copy
 import time
 from collections.abc import Callable, Mapping
 
+import matplotlib.cbook as cbook
 import numpy as np
 from scipy import ndimage
 
 from ..sim.batch import generate_batch, terrain_size
-from .evaluate import TEST_SEED_BASE, EvalSet, _run, range_cells, score, setting_config
+from .metrics import range_cells
+from .scoring import run_predictor, score
+from .testsets import TEST_SEED_BASE, EvalSet, setting_config
 
 DEM_PIXEL_M = 90.0  # approximate ground spacing of the matplotlib sample DEM
 
 
 def dem_heightfields(count: int, size: int, cell: float, seed: int = 0, dem_pixel: float = 1.0) -> np.ndarray:
     """``(count, size, size)`` float32 terrains cut from the sample DEM, slopes preserved."""
-    import matplotlib.cbook as cbook
-
     elevation = np.asarray(cbook.get_sample_data("jacksboro_fault_dem.npz")["elevation"], dtype=np.float64)
     scaled = elevation * (dem_pixel / DEM_PIXEL_M)  # metres, slopes preserved
     span = (size - 1) * cell / dem_pixel  # patch side in DEM pixels
@@ -81,7 +82,7 @@ def evaluate_robustness(predictors: Mapping[str, Callable], size: int = 32, devi
         entry = {"setting": ts.terrain, "observed_share": float((ts.mask > 0).float().mean()), "metrics": {}}
         for name, f in predictors.items():
             t0 = time.perf_counter()
-            pred, sigma, _ = _run(f, ts, device)
+            pred, sigma, _ = run_predictor(f, ts, device)
             entry["metrics"][name] = score(pred, ts, in_range, sigma=sigma)
             say(f"{ts.terrain:<40} {name:<12} RMSE unobserved {entry['metrics'][name]['rmse_unobserved']:.4f} m ({time.perf_counter() - t0:.1f} s)")
         results["settings"].append(entry)

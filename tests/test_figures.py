@@ -9,7 +9,7 @@ from pxr import Usd, UsdGeom
 
 from warp_terrain import SimConfig, lidar_preset
 from warp_terrain.cli import main
-from warp_terrain.plots.figures import FIGURE_FILES, prediction_figure
+from warp_terrain.plots.paper import FIGURE_FILES, prediction_figure
 from warp_terrain.models import Pix2PixModel
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

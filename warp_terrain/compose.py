@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from hydra import compose, initialize_config_module
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -60,8 +61,6 @@ def to_run_config(cfg) -> RunConfig:
 
 def compose_run(overrides: list[str] | tuple[str, ...] = ()) -> RunConfig:
     """The ``RunConfig`` that ``python train.py OVERRIDES`` runs (no run folder, no logging)."""
-    from hydra import compose, initialize_config_module
-
     register_configs()
     with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         cfg = compose(config_name=CONFIG_NAME, overrides=list(overrides))

@@ -87,7 +87,7 @@ def add_preview(sub) -> None:
 
 
 def cmd_preview(args) -> int:
-    from ..plots.figures import write_preview
+    from ..plots.preview import write_preview
 
     out = write_preview(args.out, terrain=args.terrain, seed=args.seed, device=args.device, dpi=args.dpi)
     print(f"wrote {out}", file=sys.stderr)
@@ -110,7 +110,7 @@ def add_figures(sub) -> None:
 
 
 def cmd_figures(args) -> int:
-    from ..plots.figures import write_figures
+    from ..plots.paper import write_figures
 
     written = write_figures(args.out, checkpoint=args.checkpoint, seed=args.seed, device=args.device, dpi=args.dpi)
     for path in written.values():
@@ -143,13 +143,14 @@ def cmd_export_usd(args) -> int:
 
     from ..compose import load_terrain_setting
     from ..inference.predictor import load_predictor
-    from ..plots.figures import _check_out, write_usd_figure
+    from ..plots.common import check_png_path
+    from ..plots.usd import write_usd_figure
     from ..export.usd import check_usd_path, export_usd
     from ..sim import generate_batch, resolve_device
 
     out = check_usd_path(args.out)  # fail before any work
     if args.png is not None:
-        _check_out(args.png)
+        check_png_path(args.png)
     device = resolve_device(args.device)
     predictor = None
     if args.checkpoint is not None:
@@ -412,7 +413,7 @@ def cmd_reconstruct(args) -> int:
     import numpy as np
 
     from ..inference.reconstructor import Reconstructor
-    from ..plots.figures import save_map_preview
+    from ..plots.maps import save_map_preview
     from ..inference.pointclouds import apply_transform, read_point_cloud, transform_matrix
 
     source = Path(args.file)

@@ -52,8 +52,7 @@ class PairStream(IterableDataset):
 
 
 def _init_worker(_worker_id: int) -> None:
-    torch.set_num_threads(1)
-    import warp_terrain  # noqa: F401  (sets Warp's log level in the worker too)
+    torch.set_num_threads(1)  # the worker unpickled this module, so warp_terrain set Warp's log level already
 
 
 def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, start: int, stop: int, device: str, workers: int, prefetch: int = 4, dataset: str = ""):

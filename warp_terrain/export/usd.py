@@ -39,7 +39,10 @@ import math
 import os
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+import torch
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..core.atomic import atomic_path
 
@@ -75,7 +78,6 @@ def check_usd_path(path) -> Path:
 def _as_array(name: str, value) -> np.ndarray:
     """A numpy view/copy of a numpy array, torch tensor, Warp array or nested sequence of numbers."""
     try:
-        import torch
 
         if isinstance(value, torch.Tensor):
             value = value.detach().cpu().numpy()
@@ -188,7 +190,6 @@ def grid_normals(heights: np.ndarray, cell: float) -> np.ndarray:
 
 def _colors(values: np.ndarray, vmin: float, vmax: float, cmap: str) -> np.ndarray:
     """``(N, 3)`` float32 RGB of ``values`` on ``cmap`` over ``[vmin, vmax]`` (a 256-entry lookup)."""
-    import matplotlib
 
     try:
         lut = matplotlib.colormaps[cmap](np.linspace(0.0, 1.0, 256))[:, :3].astype(np.float32)
@@ -201,13 +202,11 @@ def _colors(values: np.ndarray, vmin: float, vmax: float, cmap: str) -> np.ndarr
 
 # ------------------------------------------------------------------------------ stage
 def _vec3f(a: np.ndarray):
-    from pxr import Vt
 
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
 
 
 def _extent(pts: np.ndarray):
-    from pxr import Vt
 
     if len(pts) == 0:
         return Vt.Vec3fArray.FromNumpy(np.zeros((2, 3), dtype=np.float32))
@@ -215,7 +214,6 @@ def _extent(pts: np.ndarray):
 
 
 def _xform(stage, path: str, translate=(0.0, 0.0, 0.0)):
-    from pxr import Gf, UsdGeom
 
     xf = UsdGeom.Xform.Define(stage, path)
     if any(float(t) != 0.0 for t in translate):
@@ -224,7 +222,6 @@ def _xform(stage, path: str, translate=(0.0, 0.0, 0.0)):
 
 
 def _grid_mesh(stage, path: str, heights: np.ndarray, cell: float, colors: np.ndarray, doc: str):
-    from pxr import Gf, Sdf, UsdGeom, Vt
 
     H, W = heights.shape
     pts = grid_points(heights, cell)
@@ -249,7 +246,6 @@ def _grid_mesh(stage, path: str, heights: np.ndarray, cell: float, colors: np.nd
 
 
 def _points_prim(stage, path: str, pts: np.ndarray, width: float, colors: np.ndarray):
-    from pxr import UsdGeom, Vt
 
     prim = UsdGeom.Points.Define(stage, path)
     prim.CreatePointsAttr(_vec3f(pts.reshape(-1, 3)))
@@ -324,13 +320,11 @@ def export_usd(
     gap = max(1.0, 0.05 * (H - 1) * cell) if gap is None else float(gap)
     if not math.isfinite(gap) or gap < 0:
         raise ValueError(f"gap={gap!r}: must be a finite number >= 0")
-    import matplotlib
 
     for name, value in (("cmap", cmap), ("error_cmap", error_cmap)):
         if value not in matplotlib.colormaps:
             raise ValueError(f"{name}={value!r}: not a matplotlib colormap")
 
-    from pxr import Sdf, Usd, UsdGeom
 
     stage = Usd.Stage.CreateInMemory(f"anon{path.suffix}")
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
@@ -373,7 +367,6 @@ def export_usd(
             _xform(stage, f"{root}/ReconstructionError", (err_dx, 0.0, sz[b]))
             mesh = _grid_mesh(stage, f"{root}/ReconstructionError/Map", rec[b], rec_cell, _colors(err, 0.0, float(err.max()), error_cmap),
                               "reconstructed elevation map coloured by |reconstruction - target| (primvars:error, metres)")
-            from pxr import Vt
 
             pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("error", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
             pv.Set(Vt.FloatArray.FromNumpy(err.reshape(-1)))
@@ -385,7 +378,6 @@ def export_usd(
 
 
 def _write_atomically(stage, path: Path) -> None:
-    from pxr import Sdf, Tf
 
     try:
         with atomic_path(path) as tmp:

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from ..core.atomic import atomic_path
+from ..core.geometry import MAP_SIZE
 from ..models.uncertainty import split_output
 
 
@@ -33,7 +34,7 @@ class SplitOutputs(torch.nn.Module):
 
 
 def export_onnx(
-    generator: torch.nn.Module, path: str | os.PathLike, in_channels: int, map_size: int = 121, opset: int = 17, uncertainty: bool = False
+    generator: torch.nn.Module, path: str | os.PathLike, in_channels: int, map_size: int = MAP_SIZE, opset: int = 17, uncertainty: bool = False
 ) -> Path:
     """Write ``generator`` as ONNX (input ``condition`` (B, C, S, S) with a dynamic batch,
     output ``height`` (B, 1, S, S), and ``log_variance`` (B, 1, S, S) with ``uncertainty``),

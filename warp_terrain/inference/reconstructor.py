@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..core.geometry import MAP_SIZE, MapGeometry
 from ..core.torchfile import atomic_save
 from ..models import ModelConfig, build_generator
 from ..models.uncertainty import split_output
@@ -125,24 +126,39 @@ class Reconstructor:
         height = torch.stack(heights).mean(dim=0)
         return height, self.sigma_scale * torch.stack(variances).mean(dim=0).sqrt() if variances else None
 
-    def reconstruct(self, points, map_size: int = 121, map_cell: float = 0.25) -> np.ndarray:
+    @property
+    def geometry(self) -> MapGeometry:
+        """The map the model was trained on (its stored run config's ``data``), else 121 x 0.25 m."""
+        data = (self.meta.get("config") or {}).get("data") or {}
+        default = MapGeometry()
+        return MapGeometry(int(data.get("map_size", default.size)), float(data.get("map_cell", default.cell)))
+
+    def _geometry(self, map_size: int | None, map_cell: float | None) -> tuple[int, float]:
+        g = self.geometry
+        return (g.size if map_size is None else map_size), (g.cell if map_cell is None else map_cell)
+
+    def reconstruct(self, points, map_size: int | None = None, map_cell: float | None = None) -> np.ndarray:
         """``(map_size, map_size)`` float32 elevation map (sensor frame) from an ``(N, 3)`` cloud.
+
+        ``map_size`` / ``map_cell`` default to the map the model was trained on (:attr:`geometry`:
+        121 cells of 0.25 m for the shipped model).
 
         Points are in the sensor frame (gravity-aligned, origin at the LIDAR). Rows with NaN/inf
         are dropped with a warning; an empty cloud, a wrong shape or dtype raise ValueError.
         """
         return self.reconstruct_with_mask(points, map_size, map_cell)[0]
 
-    def reconstruct_with_mask(self, points, map_size: int = 121, map_cell: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    def reconstruct_with_mask(self, points, map_size: int | None = None, map_cell: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The map and the observation mask it was filled from, projecting the cloud once."""
         result = self.reconstruct_all(points, map_size, map_cell)
         return result["height"], result["mask"]
 
-    def reconstruct_all(self, points, map_size: int = 121, map_cell: float = 0.25) -> dict[str, np.ndarray]:
+    def reconstruct_all(self, points, map_size: int | None = None, map_cell: float | None = None) -> dict[str, np.ndarray]:
         """``{"height", "mask"}`` and, if the model has an uncertainty head, ``"uncertainty"``
         (each cell's standard deviation of the height, metres): ``(map_size, map_size)`` arrays."""
+        map_size, map_cell = self._geometry(map_size, map_cell)
         check_map(map_size, map_cell)
-        if self.model_config.name == "paper" and map_size != 121:
+        if self.model_config.name == "paper" and map_size != MAP_SIZE:
             raise ValueError(f"map_size={map_size}: this model is the paper's net for 121x121 maps")
         xyz = check_points(points)
         scan, mask = project_points(xyz, map_size=map_size, map_cell=map_cell, device=self.device)

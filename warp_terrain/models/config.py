@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 
+from ..core.checks import require
+
 GENERATORS = ("paper", "unet")
 NORMS = ("batch", "instance", "none")
 GAN_MODES = ("vanilla", "lsgan", "none")
@@ -53,40 +55,26 @@ class ModelConfig:
 
     def validate(self) -> ModelConfig:
         """Raise ValueError naming the first bad field; return self so calls can chain."""
-
-        def bad(field: str, why: str) -> ValueError:
-            return ValueError(f"{field}={getattr(self, field)!r}: {why}")
-
-        for field, allowed in (("name", GENERATORS), ("norm", NORMS), ("gan_mode", GAN_MODES)):
-            if getattr(self, field) not in allowed:
-                raise bad(field, f"expected one of {', '.join(allowed)}")
-        for field in ("in_channels", "out_channels", "ngf", "ndf", "disc_layers"):
-            value = getattr(self, field)
-            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-                raise bad(field, "expected a positive integer")
-        if self.in_channels not in (1, 2):
-            raise bad("in_channels", "inputs are the scan (1) or the scan and its mask (2)")
-        if self.out_channels != 1:
-            raise bad("out_channels", "the generator predicts one height map (1)")
-        if isinstance(self.unet_depth, bool) or not isinstance(self.unet_depth, int) or self.unet_depth < 2:
-            raise bad("unet_depth", "expected an integer >= 2")
-        for field in ("lr_g", "lr_d"):
-            if not _is_number(getattr(self, field)) or not getattr(self, field) > 0:
-                raise bad(field, "expected a positive learning rate")
-        if not _is_number(self.lambda_l1) or not self.lambda_l1 >= 0:
-            raise bad("lambda_l1", "expected a number >= 0")
-        if not _is_number(self.unobserved_weight) or not self.unobserved_weight > 0:
-            raise bad("unobserved_weight", "expected a number > 0")
-        if not _is_number(self.height_scale_min) or not 0.0 <= self.height_scale_min < float("inf"):
-            raise bad("height_scale_min", "expected a finite number >= 0 (metres; 0 disables the scaling)")
-        if self.relief_relative_loss and not (self.residual and self.height_scale_min > 0):
-            raise bad("relief_relative_loss", "needs residual=true and height_scale_min > 0 (the spread's floor)")
-        if self.residual and self.in_channels != 2:
-            raise bad("residual", "the fill needs the mask: set in_channels=2 (scan and mask)")
-        for field in ("dropout", "beta1", "beta2"):
-            value = getattr(self, field)
-            if not _is_number(value) or not 0.0 <= value < 1.0:
-                raise bad(field, "expected a number in [0, 1)")
+        for key, allowed in (("name", GENERATORS), ("norm", NORMS), ("gan_mode", GAN_MODES)):
+            require(getattr(self, key) in allowed, key, getattr(self, key), f"expected one of {', '.join(allowed)}")
+        for key in ("in_channels", "out_channels", "ngf", "ndf", "disc_layers"):
+            require(_is_int(getattr(self, key)) and getattr(self, key) > 0, key, getattr(self, key), "expected a positive integer")
+        require(self.in_channels in (1, 2), "in_channels", self.in_channels, "inputs are the scan (1) or the scan and its mask (2)")
+        require(self.out_channels == 1, "out_channels", self.out_channels, "the generator predicts one height map (1)")
+        require(_is_int(self.unet_depth) and self.unet_depth >= 2, "unet_depth", self.unet_depth, "expected an integer >= 2")
+        for key in ("lr_g", "lr_d"):
+            require(_is_number(getattr(self, key)) and getattr(self, key) > 0, key, getattr(self, key), "expected a positive learning rate")
+        require(_is_number(self.lambda_l1) and self.lambda_l1 >= 0, "lambda_l1", self.lambda_l1, "expected a number >= 0")
+        require(_is_number(self.unobserved_weight) and self.unobserved_weight > 0, "unobserved_weight", self.unobserved_weight,
+                "expected a number > 0")
+        require(_is_number(self.height_scale_min) and 0.0 <= self.height_scale_min < float("inf"), "height_scale_min",
+                self.height_scale_min, "expected a finite number >= 0 (metres; 0 disables the scaling)")
+        require(not self.relief_relative_loss or (self.residual and self.height_scale_min > 0), "relief_relative_loss",
+                self.relief_relative_loss, "needs residual=true and height_scale_min > 0 (the spread's floor)")
+        require(not self.residual or self.in_channels == 2, "residual", self.residual,
+                "the fill needs the mask: set in_channels=2 (scan and mask)")
+        for key in ("dropout", "beta1", "beta2"):
+            require(_is_number(getattr(self, key)) and 0.0 <= getattr(self, key) < 1.0, key, getattr(self, key), "expected a number in [0, 1)")
         return self
 
     def to_dict(self) -> dict:
@@ -107,6 +95,10 @@ class ModelConfig:
         if unknown:
             raise ValueError(f"ModelConfig: unknown field(s) {', '.join(unknown)}")
         return cls(**{k: cfg[k] for k in cfg.keys()})
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _is_number(value) -> bool:

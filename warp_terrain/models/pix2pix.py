@@ -22,7 +22,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
+import torch.distributed as dist
 from torch import nn
+from torch.nn.parallel import DistributedDataParallel
 
 from .config import ModelConfig
 from .fill import FillResidualGenerator
@@ -177,9 +179,6 @@ class Pix2PixModel:
         averaged by hand after its backward, because the pix2pix D step runs D twice (fake,
         then real) before one backward, which DDP does not allow. Both start from rank 0's
         weights."""
-        import torch.distributed as dist
-        from torch.nn.parallel import DistributedDataParallel
-
         self.world = dist.get_world_size()
         for tensor in [*self.netD.parameters(), *self.netD.buffers()]:
             dist.broadcast(tensor.data, 0)
@@ -189,8 +188,6 @@ class Pix2PixModel:
     def average_gradients(self, net: nn.Module) -> None:
         if self.world == 1:
             return
-        import torch.distributed as dist
-
         for p in net.parameters():
             if p.grad is not None:
                 dist.all_reduce(p.grad)

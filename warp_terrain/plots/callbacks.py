@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..data.seeds import FIGURE_SEED
 from ..inference.predictor import model_predictor
-from .figures import prediction_figure, reconstruction_3d_figure
+from .paper import prediction_figure, reconstruction_3d_figure
 
 
 class PaperFigures:

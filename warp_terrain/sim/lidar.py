@@ -51,6 +51,8 @@ from typing import Optional
 
 import numpy as np
 
+from ..core.checks import check_finite, require
+
 __all__ = ["LidarConfig", "LIDAR_PRESETS", "lidar_preset", "lidar_preset_names"]
 
 
@@ -109,46 +111,32 @@ class LidarConfig:
     def validate(self) -> "LidarConfig":
         """Check every field; raise ``ValueError`` naming the offending field. Returns self."""
         for f in fields(self):
+            value = getattr(self, f.name)
             if f.name in ("name", "source"):
-                if not isinstance(getattr(self, f.name), str):
-                    raise ValueError(f"{f.name} must be a string, got {getattr(self, f.name)!r}")
-                if f.name == "name" and not self.name.strip():
-                    raise ValueError(f"name={self.name!r}: must be a non-empty label")
+                require(isinstance(value, str), f.name, value, "must be a string")
+                require(f.name != "name" or value.strip() != "", f.name, value, "must be a non-empty label")
             elif f.name != "elevations_deg":
-                _finite_number(f.name, getattr(self, f.name))
+                require(isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool), f.name, value, "must be a real number")
+                check_finite(f.name, value)
 
         elev = self.elevations_deg
-        if isinstance(elev, (str, bytes)) or not isinstance(elev, (Sequence, np.ndarray)):
-            raise ValueError(f"elevations_deg must be a list of angles in degrees, got {elev!r}")
-        if len(elev) == 0:
-            raise ValueError("elevations_deg must list at least one channel angle, got none")
+        require(not isinstance(elev, (str, bytes)) and isinstance(elev, (Sequence, np.ndarray)), "elevations_deg", elev,
+                "must be a list of angles in degrees")
+        require(len(elev) > 0, "elevations_deg", elev, "must list at least one channel angle")
         for i, e in enumerate(elev):
-            _finite_number(f"elevations_deg[{i}]", e)
-            if not -90.0 <= float(e) <= 90.0:
-                raise ValueError(f"elevations_deg[{i}] = {e} is outside [-90, 90] degrees")
+            require(isinstance(e, (int, float, np.integer, np.floating)) and not isinstance(e, bool), f"elevations_deg[{i}]", e, "must be a real number")
+            check_finite(f"elevations_deg[{i}]", e)
+            require(-90.0 <= float(e) <= 90.0, f"elevations_deg[{i}]", e, "is outside [-90, 90] degrees")
 
-        if self.azimuth_step_deg <= 0.0:
-            raise ValueError(f"azimuth_step_deg must be > 0, got {self.azimuth_step_deg}")
-        if not 0.0 < self.fov_deg <= 360.0:
-            raise ValueError(f"fov_deg must be in (0, 360], got {self.fov_deg}")
-        if self.columns < 1:
-            raise ValueError(
-                f"azimuth_step_deg = {self.azimuth_step_deg} is too large for fov_deg = "
-                f"{self.fov_deg}: round(fov_deg / azimuth_step_deg) gives no columns"
-            )
-        if self.min_range < 0.0:
-            raise ValueError(f"min_range must be >= 0 m, got {self.min_range}")
-        if self.max_range <= self.min_range:
-            raise ValueError(
-                f"max_range ({self.max_range} m) must be greater than min_range "
-                f"({self.min_range} m)"
-            )
-        if self.range_noise_std < 0.0:
-            raise ValueError(f"range_noise_std must be >= 0 m, got {self.range_noise_std}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
-        if self.mount_height <= 0.0:
-            raise ValueError(f"mount_height must be > 0 m, got {self.mount_height}")
+        require(self.azimuth_step_deg > 0.0, "azimuth_step_deg", self.azimuth_step_deg, "must be > 0")
+        require(0.0 < self.fov_deg <= 360.0, "fov_deg", self.fov_deg, "must be in (0, 360]")
+        require(self.columns >= 1, "azimuth_step_deg", self.azimuth_step_deg,
+                f"is too large for fov_deg={self.fov_deg}: round(fov_deg / azimuth_step_deg) gives no columns")
+        require(self.min_range >= 0.0, "min_range", self.min_range, "must be >= 0 m")
+        require(self.max_range > self.min_range, "max_range", self.max_range, f"must be greater than min_range ({self.min_range} m)")
+        require(self.range_noise_std >= 0.0, "range_noise_std", self.range_noise_std, "must be >= 0 m")
+        require(0.0 <= self.dropout < 1.0, "dropout", self.dropout, "must be in [0, 1)")
+        require(self.mount_height > 0.0, "mount_height", self.mount_height, "must be > 0 m")
         return self
 
     # ---------------------------------------------------------------- geometry
@@ -176,13 +164,6 @@ class LidarConfig:
             np.broadcast_arrays(ce * np.cos(a), ce * np.sin(a), np.sin(e)), axis=-1
         )  # (channels, columns, 3)
         return np.ascontiguousarray(d.reshape(-1, 3), dtype=np.float32)
-
-
-def _finite_number(name: str, value: object) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    if not math.isfinite(float(value)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
 
 
 # ------------------------------------------------------------------------------------ tables

@@ -23,10 +23,12 @@ import os
 from multiprocessing import shared_memory
 
 import numpy as np
+import warp as wp
 
-from .lidar import LidarConfig
-from .terrain import TerrainConfig
 from ..core.checks import require
+from .lidar import LidarConfig
+from .scan import columns_walkable, trace
+from .terrain import TerrainConfig, make_heightfields
 
 
 def _share(shape: tuple[int, ...]) -> tuple[shared_memory.SharedMemory, np.ndarray]:
@@ -41,10 +43,6 @@ def _attach(name: str, shape: tuple[int, ...]) -> tuple[shared_memory.SharedMemo
 
 # ------------------------------------------------------------------ jobs (run in the workers)
 def _trace_job(heights_name, heights_shape, points_name, points_shape, cell, lidar, seed, reach, columns):
-    import warp as wp
-
-    from .scan import trace
-
     shms, views = zip(_attach(heights_name, heights_shape), _attach(points_name, points_shape))
     heights = wp.array(views[0], dtype=float, device="cpu", copy=False)
     points = wp.array(views[1].reshape(points_shape[0], -1, 3), dtype=wp.vec3, device="cpu", copy=False)
@@ -56,10 +54,6 @@ def _trace_job(heights_name, heights_shape, points_name, points_shape, cell, lid
 
 
 def _terrain_job(heights_name, heights_shape, cfg, seed, first, stop):
-    import warp as wp
-
-    from .terrain import make_heightfields
-
     shm, view = _attach(heights_name, heights_shape)
     mine = wp.array(view[first:stop], dtype=float, device="cpu", copy=False)
 
@@ -71,8 +65,6 @@ def _terrain_job(heights_name, heights_shape, cfg, seed, first, stop):
 
 def _serve(conn, job, args, core):
     """A worker: pin to ``core``, set the job up, then run it each time the parent asks."""
-    import warp as wp
-
     if core is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {core})  # one worker per core: they never queue on the same one
     wp.config.quiet = True
@@ -177,8 +169,6 @@ class ProcessTracer(_Shared):
     valid until the next cast or ``close``)."""
 
     def __init__(self, heights: np.ndarray, cell: float, lidar: LidarConfig, seed: int = 0, processes: int = 2, reach: float = 0.0):
-        from .scan import columns_walkable
-
         heights = np.asarray(heights, dtype=np.float32)
         if heights.ndim == 2:
             heights = heights[None]

@@ -9,6 +9,7 @@ import warp as wp
 from ..kernels import projection as projection_kernels
 from .device import resolve_device, to_warp
 from ..core.checks import check_finite, require
+from ..core.geometry import MAP_CELL, MAP_SIZE
 
 
 def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str, fill: float = 0.0):
@@ -47,7 +48,7 @@ def _real_points(points):
     return points
 
 
-def project_points(points, map_size: int = 121, map_cell: float = 0.25, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+def project_points(points, map_size: int = MAP_SIZE, map_cell: float = MAP_CELL, device=None) -> tuple[torch.Tensor, torch.Tensor]:
     """Bin sensor-frame points into ``(height, mask)`` elevation maps, each ``(batch, 1, S, S)``.
 
     ``points``: ``(rays, 3)`` or ``(batch, rays, 3)``, torch or numpy. Point (x, y, z) lands in

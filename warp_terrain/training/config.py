@@ -37,7 +37,7 @@ class TrainConfig:
     zero (pix2pix's schedule; 1.0 keeps them constant, as the paper states). The defaults are a
     useful run on a 2-core CPU in about five minutes (``train=default``).
     ``dataset``: empty trains on the live stream; else a folder written by
-    ``warp-terrain generate``, cycled over (``training.stream.training_batches``).
+    ``warp-terrain generate``, cycled over (``data.stream.training_batches``).
     """
 
     steps: int = 1000

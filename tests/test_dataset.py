@@ -8,31 +8,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
+from conftest import run_config, tiny_sim
 from omegaconf import OmegaConf
 
 import warp_terrain
-from warp_terrain import SimConfig, generate_batch, lidar_preset
+from warp_terrain import generate_batch
 from warp_terrain.cli import main
 from warp_terrain.data.disk import DatasetError, DiskPairs, shard_seed, write_dataset
 from warp_terrain.data.stream import batch_seed, make_pair, training_batches
 
-ROOT = Path(__file__).resolve().parents[1]
 MAPS = ("scan", "mask", "target")
-
-
-def tiny_sim() -> SimConfig:
-    sim = SimConfig(lidar=lidar_preset("vlp16", azimuth_step_deg=2.0))
-    sim.data.map_size = 41
-    sim.terrain.margin = 0.5
-    sim.data.noise = 0.05
-    return sim
 
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     out = tmp_path_factory.mktemp("ds") / "data"
-    manifest = write_dataset(out, 5, tiny_sim(), seed=7, shard_size=2, device="cpu")
+    manifest = write_dataset(out, 5, tiny_sim(noise=0.05), seed=7, shard_size=2, device="cpu")
     return out, manifest
 
 
@@ -40,7 +31,7 @@ def test_written_dataset_reads_back_identical_to_the_generator(dataset):
     out, manifest = dataset
     pairs = DiskPairs(out)
     assert len(pairs) == 3 and pairs.count == 5 and [s["count"] for s in manifest["shards"]] == [2, 2, 1]
-    sim = tiny_sim()
+    sim = tiny_sim(noise=0.05)
     for k in range(len(pairs)):
         n = manifest["shards"][k]["count"]
         fresh = generate_batch(n, sim, seed=shard_seed(7, k), device="cpu")
@@ -60,7 +51,7 @@ def test_manifest_records_config_seeds_version_shapes_and_hashes(dataset):
     assert on_disk == json.loads(json.dumps(manifest))
     assert on_disk["format"] == "warp-terrain-dataset" and on_disk["format_version"] == 1
     assert on_disk["warp_terrain_version"] == warp_terrain.__version__
-    assert on_disk["sim"] == json.loads(json.dumps(asdict(tiny_sim())))
+    assert on_disk["sim"] == json.loads(json.dumps(asdict(tiny_sim(noise=0.05))))
     assert on_disk["count"] == 5 and on_disk["shard_size"] == 2 and on_disk["seed"] == 7
     assert on_disk["arrays"]["scan"] == {"dtype": "float32", "sample_shape": [1, 41, 41]}
     for k, shard in enumerate(on_disk["shards"]):
@@ -71,21 +62,21 @@ def test_manifest_records_config_seeds_version_shapes_and_hashes(dataset):
         assert shard["shapes"] == {name: [shard["count"], 1, 41, 41] for name in MAPS}
         with np.load(path) as z:  # a plain numpy archive
             assert sorted(z.files) == sorted(MAPS) and z["scan"].dtype == np.float32
-    assert DiskPairs(out).sim == tiny_sim()
+    assert DiskPairs(out).sim == tiny_sim(noise=0.05)
 
 
 def test_same_command_writes_the_same_bytes(dataset, tmp_path):
     _, manifest = dataset
-    again = write_dataset(tmp_path / "again", 5, tiny_sim(), seed=7, shard_size=2, device="cpu")
+    again = write_dataset(tmp_path / "again", 5, tiny_sim(noise=0.05), seed=7, shard_size=2, device="cpu")
     assert [s["sha256"] for s in again["shards"]] == [s["sha256"] for s in manifest["shards"]]
 
 
 def test_worker_processes_write_the_same_bytes(dataset, tmp_path):
     _, manifest = dataset
-    parallel = write_dataset(tmp_path / "parallel", 5, tiny_sim(), seed=7, shard_size=2, device="cpu", workers=2)
+    parallel = write_dataset(tmp_path / "parallel", 5, tiny_sim(noise=0.05), seed=7, shard_size=2, device="cpu", workers=2)
     assert [s["sha256"] for s in parallel["shards"]] == [s["sha256"] for s in manifest["shards"]]
     with pytest.raises(ValueError, match="workers"):
-        write_dataset(tmp_path / "bad", 5, tiny_sim(), workers=-1)
+        write_dataset(tmp_path / "bad", 5, tiny_sim(noise=0.05), workers=-1)
 
 
 def _copy(src: Path, dst: Path) -> Path:
@@ -122,18 +113,18 @@ def test_refuses_a_non_empty_folder_unless_overwrite(tmp_path):
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     with pytest.raises(DatasetError, match="not empty"):
-        write_dataset(out, 1, tiny_sim(), device="cpu")
+        write_dataset(out, 1, tiny_sim(noise=0.05), device="cpu")
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
-    write_dataset(out, 1, tiny_sim(), device="cpu", overwrite=True)
+    write_dataset(out, 1, tiny_sim(noise=0.05), device="cpu", overwrite=True)
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "notes.txt", "shard-00000.npz"]
     with pytest.raises(ValueError, match="count"):
-        write_dataset(tmp_path / "e", 0, tiny_sim(), device="cpu")
+        write_dataset(tmp_path / "e", 0, tiny_sim(noise=0.05), device="cpu")
     assert not (tmp_path / "e").exists()
 
 
 def test_training_batches_from_a_dataset_cycle_reproducibly(dataset):
     out, _ = dataset
-    sim = tiny_sim()
+    sim = tiny_sim(noise=0.05)
     # batch size = shard size: the first epoch is the stream itself
     from_disk = list(training_batches(sim, 2, seed=7, rank=0, start=0, stop=7, device="cpu", workers=1, dataset=str(out)))
     stream = list(training_batches(sim, 2, seed=7, rank=0, start=0, stop=2, device="cpu", workers=0))
@@ -147,33 +138,29 @@ def test_training_batches_from_a_dataset_cycle_reproducibly(dataset):
     resumed = next(training_batches(sim, 2, seed=7, rank=0, start=5, stop=6, device="cpu", workers=0, dataset=str(out)))
     assert int(resumed["step"]) == 5 and torch.equal(resumed["target"], from_disk[5]["target"])
     with pytest.raises(ValueError, match="map_size"):
-        bigger = tiny_sim()
+        bigger = tiny_sim(noise=0.05)
         bigger.data.map_size = 61
         training_batches(bigger, 2, 0, 0, 0, 1, "cpu", 0, dataset=str(out))
 
 
 def test_train_reads_the_dataset_through_config(dataset, tmp_path):
-    from warp_terrain.compose import register_configs, to_run_config
     from warp_terrain.training import train
 
     out, _ = dataset
-    register_configs()
     tiny = ["model=unet", "model.ngf=8", "model.ndf=8", "model.unet_depth=3", "data.map_size=41", "terrain.margin=0.5",
             "terrain.amplitude=1.5", "lidar=vlp16", "lidar.azimuth_step_deg=2.0", "data.noise=0.05", "train.batch_size=2", "train.val_size=2",
             "train.workers=0", "train.progress=false", "train.steps=2", f"train.dataset={out}"]
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        cfg = to_run_config(compose(config_name="config", overrides=tiny))
+    cfg = run_config(*tiny)
     assert cfg.train.dataset == str(out)
     with pytest.warns(UserWarning, match="different terrain/lidar/data config"):  # the run's terrain (amplitude 1.5 m) is not the dataset's
         summary = train(cfg, tmp_path / "run")
     assert summary["steps"] == 2 and Path(summary["checkpoint"]).is_file()
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        assert to_run_config(compose(config_name="config")).train.dataset == ""
+    assert run_config().train.dataset == ""
 
 
 def test_generate_command_with_a_run_config(tmp_path, capsys):
     config = tmp_path / "run_config.yaml"
-    sim = tiny_sim()
+    sim = tiny_sim(noise=0.05)
     OmegaConf.save(OmegaConf.create({"terrain": asdict(sim.terrain), "lidar": asdict(sim.lidar), "data": asdict(sim.data),
                                      "train": {"steps": 3}}), config)
     out = tmp_path / "gen"

@@ -10,6 +10,7 @@ import torch
 from scipy import ndimage
 
 from warp_terrain.cli import main
+from warp_terrain.data.seeds import VALIDATION_SEED_BASE, batch_seed, validation_seed
 from warp_terrain.evaluation import (
     BASELINES,
     TEST_SEED_BASE,
@@ -26,10 +27,9 @@ from warp_terrain.evaluation import (
     range_cells,
     setting_config,
 )
+from warp_terrain.inference.predictor import load_predictor, model_predictor
 from warp_terrain.sim import generate_batch
 from warp_terrain.sim.batch import terrain_size
-from warp_terrain.data.seeds import VALIDATION_SEED_BASE, batch_seed, validation_seed
-from warp_terrain.inference.predictor import load_predictor, model_predictor
 
 
 def t(a) -> torch.Tensor:

@@ -5,21 +5,14 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 import torch
+from conftest import tiny_sim
 from pxr import Usd, UsdGeom
 
-from warp_terrain import SimConfig, lidar_preset
 from warp_terrain.cli import main
-from warp_terrain.plots.paper import FIGURE_FILES, prediction_figure
 from warp_terrain.models import Pix2PixModel
+from warp_terrain.plots.paper import FIGURE_FILES, prediction_figure
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def tiny_sim() -> SimConfig:
-    sim = SimConfig(lidar=lidar_preset("vlp16", azimuth_step_deg=2.0))
-    sim.data.map_size = 41
-    sim.terrain.margin = 0.5
-    return sim
 
 
 @pytest.fixture(scope="module")

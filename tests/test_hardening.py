@@ -7,8 +7,7 @@ import os
 import pytest
 
 from warp_terrain.core.paths import file_name, output_path
-from warp_terrain.sim import SimConfig, generate_batch
-from warp_terrain.sim import memory
+from warp_terrain.sim import SimConfig, generate_batch, memory
 from warp_terrain.sim.batch import terrain_size
 
 

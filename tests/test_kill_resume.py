@@ -23,16 +23,12 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
-from test_training import TINY as TRAINING_TINY
+from conftest import ROOT, TINY_RUN, run_config
 
-import warp_terrain.training.loop as loop
-from warp_terrain.compose import register_configs, to_run_config
-from warp_terrain.training import train
 from warp_terrain.core.torchfile import load_checkpoint
+from warp_terrain.training import train
 from warp_terrain.training.checkpoint import LATEST, resolve_resume
 
-ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT = 120.0  # seconds any one child may take; a step takes well under a second
 EVERY = 3  # train.checkpoint_every
 TOTAL = 12  # the resumed runs' train.steps (the uninterrupted reference's length)
@@ -41,7 +37,7 @@ TOTAL = 12  # the resumed runs' train.steps (the uninterrupted reference's lengt
 # images only at the end of a run, and constant learning rates, so that the killed run (a
 # long train.steps), the resumed one and the reference follow the same schedule
 TINY = [
-    *TRAINING_TINY,
+    *TINY_RUN,
     "train.device=cpu",  # deterministic kernels (the resumed weights match the reference bit for bit)
     "train.threads=1",  # on a small shared CPU two threads per step can be three times slower
     "train.val_every=100000",
@@ -153,9 +149,7 @@ def reference(tmp_path_factory):
 
     def run(total: int) -> dict:
         if total not in cache:
-            register_configs()
-            with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-                cfg = to_run_config(compose(config_name="config", overrides=[*TINY, f"train.steps={total}"]))
+            cfg = run_config(*TINY, f"train.steps={total}")
             threads = torch.get_num_threads()
             try:
                 summary = train(cfg, tmp_path_factory.mktemp(f"straight{total}"))

@@ -7,11 +7,11 @@ import pytest
 import torch
 
 import warp_terrain as wt
-from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.inference.onnx import check_onnx, export_onnx
+from warp_terrain.inference.pointclouds import apply_transform, read_point_cloud, transform_matrix
+from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.models import ModelConfig, build_generator
 from warp_terrain.models.fill import push_pull_fill
-from warp_terrain.inference.pointclouds import apply_transform, read_point_cloud, transform_matrix
 
 SMALL = ModelConfig(name="unet", in_channels=2, residual=True, ngf=8, ndf=8, unet_depth=4)
 

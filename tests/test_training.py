@@ -7,43 +7,18 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
+from conftest import ROOT, TINY_RUN, run_config
+from hydra import compose, initialize_config_module
 
-from warp_terrain.compose import register_configs, to_run_config
-from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.data.seeds import batch_seed
+from warp_terrain.compose import CONFIG_MODULE, register_configs
+from warp_terrain.core.torchfile import load_checkpoint
+from warp_terrain.data.seeds import VALIDATION_SEED_BASE, batch_seed
 from warp_terrain.data.stream import training_batches
+from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.plots.callbacks import PaperFigures
 from warp_terrain.training import train
-from warp_terrain.core.torchfile import load_checkpoint
-from warp_terrain.data.seeds import VALIDATION_SEED_BASE
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = str(ROOT / "conf")
-
-# small and quick: 41x41 maps (so the generic U-Net), a sparse sensor, narrow nets
-TINY = [
-    "model=unet",
-    "model.ngf=8",
-    "model.ndf=8",
-    "model.unet_depth=3",
-    "data.map_size=41",
-    "terrain.margin=0.5",
-    "lidar=vlp16",
-    "lidar.azimuth_step_deg=2.0",
-    "train.batch_size=2",
-    "train.val_size=4",
-    "train.log_every=1",
-    "train.workers=0",
-    "train.progress=false",
-]
-
-
-def run_config(*overrides):
-    register_configs()
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(config_name="config", overrides=list(overrides))
-    return to_run_config(cfg)
+TINY = TINY_RUN
 
 
 def test_default_composition_is_typed_and_valid():
@@ -232,7 +207,7 @@ def test_torchrun_ddp_two_gloo_ranks_train_on_different_data(tmp_path):
 
 def test_slurm_launcher_config_composes():
     register_configs()
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+    with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         cfg = compose(config_name="config", overrides=["hydra/launcher=slurm_gpu"], return_hydra_config=True)
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher")
     assert cfg.hydra.launcher.gpus_per_node == 1

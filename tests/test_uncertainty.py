@@ -11,8 +11,8 @@ import torch
 import warp_terrain as wt
 from warp_terrain.evaluation import evaluate, format_table
 from warp_terrain.evaluation.metrics import calibration
-from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.inference.onnx import check_onnx, export_onnx
+from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.models import ModelConfig, build_generator, build_model
 from warp_terrain.models.fill import loss_weight_map, observed_spread, push_pull_fill
 from warp_terrain.models.uncertainty import LOG_VARIANCE_RANGE, gaussian_nll, split_output
@@ -179,9 +179,9 @@ class _ScanWithConstantSigma(torch.nn.Module):
 
 
 def test_sigma_scale_is_the_rms_error_over_sigma_on_validation_pairs():
+    from warp_terrain.data.stream import make_pair, validation_seed
     from warp_terrain.evaluation.calibrate import CALIBRATION_FIRST_CHUNK, fit_sigma_scale
     from warp_terrain.sim import SimConfig
-    from warp_terrain.data.stream import make_pair, validation_seed
 
     cfg = ModelConfig(name="unet", in_channels=2, uncertainty=True)
     rec = Reconstructor(_ScanWithConstantSigma(), cfg, {"sigma_scale": 7.0}, device="cpu", tta=False)

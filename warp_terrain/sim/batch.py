@@ -12,10 +12,12 @@ from dataclasses import dataclass, field
 import torch
 import warp as wp
 
+from ..core.checks import check_finite, require
 from ..core.geometry import MAP_CELL, MAP_SIZE, MapGeometry
 from ..core.structs import build
 from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
+from .dem import check_fit, load_dems
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig, lidar_preset
 from .memory import check_batch_fits
@@ -23,7 +25,6 @@ from .projection import bin_into_maps, check_map
 from .randomize import RandomizeConfig, randomize
 from .scan import as_heightfields, trace
 from .terrain import TerrainConfig, grid_size, make_heightfields
-from ..core.checks import check_finite, require
 
 
 @dataclass
@@ -72,10 +73,14 @@ class SimConfig:
     lidar: LidarConfig = field(default_factory=lambda: lidar_preset("hdl32e"))
     data: DataConfig = field(default_factory=DataConfig)
 
-    def validate(self) -> None:
-        self.terrain.validate()
+    def validate(self, files: bool = True) -> None:
+        """Check every section; ``files=False`` skips loading DEM files (``terrain.source=dem``),
+        for a recorded config (a checkpoint's, a dataset's) used where they may be absent."""
+        self.terrain.validate(files)
         self.lidar.validate()
         self.data.validate()
+        if files and self.terrain.source == "dem":  # every raster must hold a window of the map plus its margin
+            check_fit(load_dems(self.terrain.dem), terrain_size(self), self.terrain.cell, self.terrain.dem)
 
 
 @dataclass
@@ -101,15 +106,16 @@ class Batch:
     sensor_z: torch.Tensor
     warp_arrays: dict = field(default_factory=dict, repr=False)
 
-    def to(self, device) -> "Batch":
+    def to(self, device) -> Batch:
         moved = {k: getattr(self, k).to(device) for k in ("scan", "mask", "target", "points", "scan_max", "heights", "sensor_z")}
         return Batch(**moved)
 
 
-def as_sim_config(cfg) -> SimConfig:
+def as_sim_config(cfg, files: bool = True) -> SimConfig:
     """A validated ``SimConfig`` from None, a ``SimConfig``/``DataConfig``, or any object or
     mapping (a Hydra run config, a ``RunConfig``, a checkpoint's config dict) with
-    ``terrain``/``lidar``/``data`` entries; what they give is merged over the defaults."""
+    ``terrain``/``lidar``/``data`` entries; what they give is merged over the defaults.
+    ``files=False``: DEM files are not loaded (see ``SimConfig.validate``)."""
     if cfg is None:
         sim = SimConfig()
     elif isinstance(cfg, SimConfig):
@@ -123,7 +129,7 @@ def as_sim_config(cfg) -> SimConfig:
         else:
             picked = {k: cfg[k] for k in sections if k in cfg}
         sim = build(SimConfig, picked)
-    sim.validate()
+    sim.validate(files)
     return sim
 
 
@@ -133,9 +139,10 @@ def terrain_size(sim: SimConfig) -> int:
 
 
 def make_terrains(batch: int, sim: SimConfig, seed: int, device: str, amplitude=None, feature_size=None) -> wp.array:
-    """Stage 1: ``(batch, H, W)`` terrains covering the map plus its margin, obstacles placed
-    within the map (or ``terrain.obstacle_region``); per-sample ``amplitude``/``feature_size``
-    override the config's."""
+    """Stage 1: ``(batch, H, W)`` terrains covering the map plus its margin (fBm, or windows of
+    the DEMs with ``terrain.source=dem``), obstacles placed within the map (or
+    ``terrain.obstacle_region``); per-sample ``amplitude``/``feature_size`` override the
+    config's (fBm only)."""
     data, terrain = sim.data, sim.terrain
     region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
     return make_heightfields(

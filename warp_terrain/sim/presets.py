@@ -6,7 +6,9 @@ folder, and ``TerrainConfig()`` is ``octave5``. Sources: the paper (Sutavani et 
 Perlin terrain of "octaves" 3 and 5; flat ground with cylindrical obstacles; slight terrain with
 negative obstacles (holes and ditches) the LIDAR cannot see into. Sizes are ours (the paper
 gives none): relief of +-2 m over 20 m features at true scale on a 30 m map, obstacles of
-vehicle-relevant size.
+vehicle-relevant size. ``dem`` takes real ground from elevation rasters the user names
+(``terrain=dem terrain.dem.files=[a.tif]``, ``sim/dem.py``); it needs those files, so it is not
+one of the settings ``terrain_preset_names`` (and ``all``) run as they are.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import copy
 
 from .batch import DataConfig, SimConfig
+from .dem import DemConfig
 from .terrain import ObstacleConfig, TerrainConfig
 
 TERRAIN_PRESETS: dict[str, TerrainConfig] = {
@@ -33,18 +36,21 @@ TERRAIN_PRESETS: dict[str, TerrainConfig] = {
         ditches=ObstacleConfig(count_min=1, count_max=3, width_min=0.8, width_max=2.0, length_min=4.0, length_max=12.0,
                                height_min=0.5, height_max=1.5),
     ),
+    # real ground: true-scale windows of elevation rasters, random heading and mirror (give the files)
+    "dem": TerrainConfig(name="dem", source="dem", dem=DemConfig()),
 }
 
 
 def terrain_preset_names() -> list[str]:
-    """The preset names, sorted."""
-    return sorted(TERRAIN_PRESETS)
+    """The names of the presets that run as they are (what ``all`` means), sorted: every
+    preset but those that need the user's files (``dem``)."""
+    return sorted(name for name, terrain in TERRAIN_PRESETS.items() if terrain.source == "fbm")
 
 
 def terrain_preset(name: str) -> TerrainConfig:
     """A fresh copy of the terrain preset ``name``."""
     if name not in TERRAIN_PRESETS:
-        raise ValueError(f"terrain={name!r}: unknown terrain setting; choose from {', '.join(terrain_preset_names())}")
+        raise ValueError(f"terrain={name!r}: unknown terrain setting; choose from {', '.join(sorted(TERRAIN_PRESETS))}")
     return copy.deepcopy(TERRAIN_PRESETS[name])
 
 

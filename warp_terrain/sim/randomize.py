@@ -4,7 +4,9 @@ Users' terrain and sensors differ from any training default. With ``data.randomi
 every batch draws its own sensor (any preset), mount height, range noise, image noise (up to
 ``noise_max``), octave count and obstacle mix, and every sample its own relief amplitude and feature size (log-uniform, from
 centimetres to metres and from a few metres to tens of metres). The draws come from the batch
-seed, so a randomised stream is as reproducible as a fixed one.
+seed, so a randomised stream is as reproducible as a fixed one. With ``terrain.source=dem`` the
+relief is real ground: the amplitude, feature-size and octave draws do not apply to it; the
+sensor, obstacles and noise are drawn as on fBm terrain.
 """
 
 from __future__ import annotations
@@ -15,9 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.checks import check_finite, require
 from .lidar import LIDAR_PRESETS, lidar_preset
 from .terrain import OBSTACLE_KINDS, ObstacleConfig
-from ..core.checks import check_finite, require
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""Terrain synthesis: fBm Perlin heightfields with obstacles, batched on the device."""
+"""Terrain synthesis: fBm Perlin or real-DEM heightfields with obstacles, batched on the device."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ import numpy as np
 import torch
 import warp as wp
 
+from ..core.checks import check_finite, require
 from ..kernels import noise as noise_kernels
 from ..kernels import obstacles as obstacle_kernels
-from ..core.checks import check_finite, require
+from .dem import DemConfig, dem_windows, load_dems
 from .device import resolve_device
 
 
@@ -44,6 +45,8 @@ class ObstacleConfig:
             require(hi >= lo, f"{name}.{key}_max", hi, f"must be >= {key}_min")
 
 
+TERRAIN_SOURCES = ("fbm", "dem")
+
 OBSTACLE_KINDS = {
     "cylinders": obstacle_kernels.CYLINDER,
     "boxes": obstacle_kernels.BOX,
@@ -55,7 +58,8 @@ OBSTACLE_KINDS = {
 
 @dataclass
 class TerrainConfig:
-    """A random terrain: fBm Perlin relief plus obstacles.
+    """A random terrain: fBm Perlin relief (``source="fbm"``) or windows of real elevation
+    rasters (``source="dem"``, files and window draws in ``dem``: ``sim/dem.py``), plus obstacles.
 
     The defaults are the ``octave5`` preset (``sim.presets``). The relief is ``amplitude * fBm`` with ``octaves`` octaves whose first wavelength is
     ``feature_size`` metres (each octave ``lacunarity`` times finer and ``persistence`` times
@@ -64,9 +68,12 @@ class TerrainConfig:
     extends beyond the map on each side, so shadows near the map's edge come from real terrain.
     Obstacles are placed in the square ``+-obstacle_region`` metres around the sensor
     (0: the map's extent), keeping ``keep_out`` metres clear around the sensor (the vehicle).
+    With ``source="dem"`` the fBm keys are not used (still checked) and the obstacles stand on
+    the real ground.
     """
 
     name: str = "octave5"
+    source: str = "fbm"
     octaves: int = 5
     persistence: float = 0.5
     lacunarity: float = 2.0
@@ -81,9 +88,13 @@ class TerrainConfig:
     rocks: ObstacleConfig = field(default_factory=ObstacleConfig)
     pits: ObstacleConfig = field(default_factory=ObstacleConfig)
     ditches: ObstacleConfig = field(default_factory=ObstacleConfig)
+    dem: DemConfig = field(default_factory=DemConfig)
 
-    def validate(self) -> None:
+    def validate(self, files: bool = True) -> None:
+        """Check every key; with ``source="dem"`` and ``files``, also that each DEM file loads
+        (``files=False`` checks a recorded config where the files may be absent)."""
         require(isinstance(self.name, str) and self.name.strip() != "", "name", self.name, "must be a non-empty label")
+        require(self.source in TERRAIN_SOURCES, "source", self.source, f"must be one of {', '.join(TERRAIN_SOURCES)}")
         require(isinstance(self.octaves, int) and self.octaves >= 1, "octaves", self.octaves, "must be an integer >= 1")
         require(self.octaves <= 16, "octaves", self.octaves, "must be <= 16")
         for key in ("persistence", "lacunarity", "feature_size", "amplitude", "cell", "margin", "obstacle_region", "keep_out"):
@@ -98,6 +109,7 @@ class TerrainConfig:
         require(self.keep_out >= 0, "keep_out", self.keep_out, "must be >= 0")
         for name in OBSTACLE_KINDS:
             getattr(self, name).validate(name)
+        self.dem.validate("dem", load=files and self.source == "dem")
 
     def has_obstacles(self) -> bool:
         return any(getattr(self, name).count_max > 0 for name in OBSTACLE_KINDS)
@@ -191,29 +203,20 @@ def make_heightfields(
     first: int = 0,
     out: wp.array | None = None,
 ) -> wp.array:
-    """``(batch, size, size)`` Warp heightfields: fBm relief, then obstacles stamped in.
+    """``(batch, size, size)`` Warp heightfields: the relief (fBm, or DEM windows with
+    ``cfg.source="dem"``), then obstacles stamped in.
 
-    ``feature_size`` / ``amplitude`` override the config per sample (domain randomisation).
-    Samples are numbered from ``first`` (sample ``first + b`` is the same terrain in any batch,
-    so processes can split a batch: ``sim/parallel.py``); ``out`` receives them if given.
+    ``feature_size`` / ``amplitude`` override the config per sample (domain randomisation; fBm
+    only). Samples are numbered from ``first`` (sample ``first + b`` is the same terrain in any
+    batch, so processes can split a batch: ``sim/parallel.py``); ``out`` receives them if given.
     """
     cell = cfg.cell
     heights = out if out is not None else wp.empty((batch, size, size), dtype=float, device=device)
-    fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
-    offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
-    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed, int(first)], outputs=[fields_, offsets], device=device)
-    features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size")
-    amplitudes = per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude")
-    if device == "cpu":
-        fbm_rows(fields_, offsets, cfg, features, amplitudes, heights)
+    if cfg.source == "dem":
+        windows = dem_windows(load_dems(cfg.dem), batch, size, cell, seed, cfg.dem, first=int(first))
+        wp.copy(heights, wp.array(windows, dtype=float, device=device))
     else:
-        wp.launch(
-            noise_kernels.fractal_heightfield,
-            dim=heights.shape,
-            inputs=[fields_, offsets, cell, cfg.persistence, cfg.lacunarity, features, amplitudes],
-            outputs=[heights],
-            device=device,
-        )
+        _fbm_relief(heights, cfg, seed, device, feature_size, amplitude, first)
     if cfg.has_obstacles():
         specs, slot_spec, slot_rank = _specs(cfg, device)
         region = obstacle_region if obstacle_region is not None else cfg.obstacle_region
@@ -229,6 +232,26 @@ def make_heightfields(
         )
         wp.launch(obstacle_kernels.stamp_obstacles, dim=heights.shape, inputs=[obstacles, cell], outputs=[heights], device=device)
     return heights
+
+
+def _fbm_relief(heights: wp.array, cfg: TerrainConfig, seed: int, device: str, feature_size, amplitude, first: int) -> None:
+    """Write ``amplitude * fBm`` into ``heights`` (per-sample ``feature_size``/``amplitude`` if given)."""
+    batch = heights.shape[0]
+    fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
+    offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
+    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed, int(first)], outputs=[fields_, offsets], device=device)
+    features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size")
+    amplitudes = per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude")
+    if device == "cpu":
+        fbm_rows(fields_, offsets, cfg, features, amplitudes, heights)
+    else:
+        wp.launch(
+            noise_kernels.fractal_heightfield,
+            dim=heights.shape,
+            inputs=[fields_, offsets, cfg.cell, cfg.persistence, cfg.lacunarity, features, amplitudes],
+            outputs=[heights],
+            device=device,
+        )
 
 
 def fractal_heightfield(

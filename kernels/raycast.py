@@ -11,8 +11,10 @@ touching its cells; a ray heading up above the highest point of its terrain stop
 
 A spinning LIDAR's rays come in azimuth columns, and the rays of a column share one vertical
 plane, so ``cast_columns`` walks each column once for all its rings (lowest first: in that
-plane a lower ray never meets the terrain beyond a higher one). ``cast_rays`` walks each ray on
-its own; it serves rings that point straight up or down and checks the column walk in tests.
+plane a lower ray never meets the terrain beyond a higher one). The walk exists once, as
+``walk``: ``cast_columns`` runs it per column, moving on to the next ring where a ring's
+walk is over; ``cast_rays`` runs it per ray, for rings that point straight up or down (no
+horizontal direction to walk a column by) and as the column walk's check in tests.
 
 Ray ``r`` of sample ``b`` starts at the sensor, above the heightfield's centre, and leaves
 with unit direction ``directions[r]`` (sensor frame = world axes). The hit is written in the
@@ -149,25 +151,77 @@ def inverse(direction: float, step: int) -> float:
     return 1.0 / direction
 
 
+@wp.struct
+class Line:
+    """The x-y path of a ray (or of the rays of one azimuth column) over the grid:
+    ``(u0 + du s, v0 + dv s)`` in grid coordinates (cells) at ``s`` along it, and how it steps
+    through cells along each axis (``step``: +1, -1 or 0; ``inv``: 1 / d, or 0 where it does not move)."""
+
+    u0: float
+    v0: float
+    du: float
+    dv: float
+    inv_du: float
+    inv_dv: float
+    step_i: int
+    step_j: int
+
+
+@wp.struct
+class Walk:
+    """Where a walk along a line's cells stands: at ``s``, in cell ``(i, j)``, testing the cells
+    of tile ``(open_ti, open_tj)`` one by one (any other tile it enters is first checked whole).
+    Once ``over``, ``hit`` is where the ray met the surface (NO_HIT: nowhere before its end)."""
+
+    s: float
+    i: int
+    j: int
+    open_ti: int
+    open_tj: int
+    over: bool
+    hit: float
+
+
 @wp.func
-def tile_exits(u0: float, v0: float, inv_du: float, inv_dv: float, ti: int, tj: int, tile: int, step_i: int, step_j: int) -> wp.vec2:
-    """Ray parameters at which the ray leaves tile ``(ti, tj)`` along each axis."""
+def grid_line(u0: float, v0: float, du: float, dv: float) -> Line:
+    """The line ``(u0 + du s, v0 + dv s)``, with its cell steps."""
+    line = Line()
+    line.u0 = u0
+    line.v0 = v0
+    line.du = du
+    line.dv = dv
+    line.step_i = axis_step(du)
+    line.step_j = axis_step(dv)
+    line.inv_du = inverse(du, line.step_i)
+    line.inv_dv = inverse(dv, line.step_j)
+    return line
+
+
+@wp.func
+def box_exit(line: Line, box: wp.vec4) -> float:
+    """The ``s`` at which the line leaves the grid-coordinate box ``(lo_u, hi_u, lo_v, hi_v)``."""
+    return wp.min(slab_exit(line.u0, line.du, box[0], box[1]), slab_exit(line.v0, line.dv, box[2], box[3]))
+
+
+@wp.func
+def tile_exits(line: Line, ti: int, tj: int, tile: int) -> wp.vec2:
+    """The ``s`` at which the line leaves tile ``(ti, tj)`` along each axis."""
     return wp.vec2(
-        next_boundary(u0, inv_du, ti * tile + wp.max(step_i, 0) * (tile - 1), step_i),
-        next_boundary(v0, inv_dv, tj * tile + wp.max(step_j, 0) * (tile - 1), step_j),
+        next_boundary(line.u0, line.inv_du, ti * tile + wp.max(line.step_i, 0) * (tile - 1), line.step_i),
+        next_boundary(line.v0, line.inv_dv, tj * tile + wp.max(line.step_j, 0) * (tile - 1), line.step_j),
     )
 
 
 @wp.func
-def cell_beyond_tile(
-    exits: wp.vec2, t: float, i: int, j: int, ti: int, tj: int, tile: int, u0: float, v0: float, du: float, dv: float, step_i: int, step_j: int
-) -> wp.vec2i:
-    """The cell a ray enters when it leaves tile ``(ti, tj)`` at ``t``: the exit axis moves into
-    the next tile; the other follows the ray but never backwards (a ray through a tile corner
+def cell_beyond_tile(line: Line, exits: wp.vec2, s: float, i: int, j: int, ti: int, tj: int, tile: int) -> wp.vec2i:
+    """The cell the line enters when it leaves tile ``(ti, tj)`` at ``s``: the exit axis moves into
+    the next tile; the other follows the line but never backwards (a ray through a tile corner
     must not bounce between two tiles)."""
     if exits[0] <= exits[1]:
-        return wp.vec2i(ti * tile + wp.max(step_i, 0) * tile - wp.max(-step_i, 0), forward(j, cell_index(v0 + dv * t, step_j), step_j))
-    return wp.vec2i(forward(i, cell_index(u0 + du * t, step_i), step_i), tj * tile + wp.max(step_j, 0) * tile - wp.max(-step_j, 0))
+        i_next = ti * tile + wp.max(line.step_i, 0) * tile - wp.max(-line.step_i, 0)
+        return wp.vec2i(i_next, forward(j, cell_index(line.v0 + line.dv * s, line.step_j), line.step_j))
+    j_next = tj * tile + wp.max(line.step_j, 0) * tile - wp.max(-line.step_j, 0)
+    return wp.vec2i(forward(i, cell_index(line.u0 + line.du * s, line.step_i), line.step_i), j_next)
 
 
 @wp.func
@@ -177,77 +231,117 @@ def corner_heights(heights: wp.array3d(dtype=float), b: int, i: int, j: int) -> 
 
 
 @wp.func
-def trace_heightfield(
+def walk_start(line: Line) -> Walk:
+    """A walk at the line's start (``s = 0``), in the cell it sets off into, no tile open yet."""
+    w = Walk()
+    w.s = 0.0
+    w.i = cell_index(line.u0, line.step_i)
+    w.j = cell_index(line.v0, line.step_j)
+    w.open_ti = -1
+    w.open_tj = -1
+    w.over = False
+    w.hit = NO_HIT
+    return w
+
+
+@wp.func
+def ended(w: Walk, hit: float) -> Walk:
+    """The walk, over at ``hit`` (or NO_HIT)."""
+    w.over = True
+    w.hit = hit
+    return w
+
+
+@wp.func
+def resumed(w: Walk) -> Walk:
+    """The walk, going on from where it stands for another ray along the same line (the next
+    ring of a column): not over, and the tile it is in is checked whole again for that ray."""
+    w.over = False
+    w.hit = NO_HIT
+    w.open_ti = -1
+    w.open_tj = -1
+    return w
+
+
+@wp.func
+def skip_tile(w: Walk, line: Line, exits: wp.vec2, s_tile: float, s_end: float, ti: int, tj: int, tile: int) -> Walk:
+    """The walk past tile ``(ti, tj)``, which the ray passes above up to ``s_tile``: on in the
+    cell beyond the boundary it leaves through, or over if its end comes first."""
+    if s_tile >= s_end:
+        return ended(w, NO_HIT)
+    w.s = wp.max(w.s, s_tile)
+    entered = cell_beyond_tile(line, exits, w.s, w.i, w.j, ti, tj, tile)
+    w.i = entered[0]
+    w.j = entered[1]
+    return w
+
+
+@wp.func
+def cross_cell(w: Walk, line: Line, corner: wp.vec4, z: float, z0: float, dz: float, s_end: float) -> Walk:
+    """The walk through its cell (corner heights ``corner``; the ray at height ``z`` on entering):
+    over where the ray meets the cell's triangles, else on in the neighbouring cell whose boundary
+    the line crosses first (or over, if the ray's end lies in this cell). A cell whose corners all
+    lie below the ray over its segment is passed without the exact test."""
+    t_u = next_boundary(line.u0, line.inv_du, w.i, line.step_i)
+    t_v = next_boundary(line.v0, line.inv_dv, w.j, line.step_j)
+    s_cell = wp.max(wp.min(wp.min(t_u, t_v), s_end), w.s)
+    if wp.min(z, z0 + dz * s_cell) <= wp.max(wp.max(corner[0], corner[1]), wp.max(corner[2], corner[3])):
+        hit = cell_hit(corner[0], corner[1], corner[2], corner[3], line.u0 - float(w.i), line.v0 - float(w.j), z0, line.du, line.dv, dz, w.s, s_cell)
+        if hit != NO_HIT:
+            return ended(w, hit)
+    if s_cell >= s_end:
+        return ended(w, NO_HIT)
+    if t_u <= t_v:
+        w.i = w.i + line.step_i
+    else:
+        w.j = w.j + line.step_j
+    w.s = s_cell
+    return w
+
+
+@wp.func
+def walk(
+    w: Walk,
+    line: Line,
     heights: wp.array3d(dtype=float),
     tile_max: wp.array3d(dtype=float),
-    top: float,
-    tile: int,
     b: int,
-    u0: float,
-    v0: float,
+    tile: int,
+    top: float,
     z0: float,
-    du: float,
-    dv: float,
     dz: float,
-    t_end: float,
-) -> float:
-    """Distance along the ray to the first surface of heightfield ``b`` before ``t_end``.
+    s_end: float,
+) -> Walk:
+    """The walk of the ray ``(line, z0 + dz s)``, ``s`` in ``[0, s_end]``, over heightfield ``b``,
+    from where ``w`` stands until it is over: the one cell walk every ray takes.
 
-    Grid coordinates: the ray is ``(u0 + du t, v0 + dv t, z0 + dz t)`` with t in metres. The
-    walk is an incremental DDA: each step moves to the neighbouring cell whose boundary the ray
-    crosses first, and each boundary's t is computed from its integer coordinate (no drift).
-    A cell whose four corners all lie below the ray over its segment is passed without the exact
-    test; a tile the ray passes above is skipped whole, the walk resuming in the cell beyond the
-    tile boundary it leaves through. Cells are picked by the direction of travel, so a ray on a
-    boundary is in the cell it enters and never stalls.
+    The walk is an incremental DDA (Amanatides & Woo): each step moves to the neighbouring cell
+    whose boundary the line crosses first, each boundary's ``s`` computed from its integer
+    coordinate (no drift). A tile the ray passes above (``tile_max``) is skipped whole, the walk
+    resuming in the cell beyond the tile boundary it leaves through. Cells are picked by the
+    direction of travel, so a ray on a boundary is in the cell it enters and never stalls. The
+    walk is over at its end, when the ray heads up above ``top`` (the terrain's highest point),
+    when it leaves the grid, or where it meets the surface; it stands in the cell where it ended.
     """
     H = heights.shape[1]
     W = heights.shape[2]
-    step_i = axis_step(du)
-    step_j = axis_step(dv)
-    inv_du = inverse(du, step_i)
-    inv_dv = inverse(dv, step_j)
-    t = float(0.0)
-    i = cell_index(u0, step_i)
-    j = cell_index(v0, step_j)
-    open_ti = int(-1)
-    open_tj = int(-1)
-    while t < t_end:
-        z = z0 + dz * t
-        if dz >= 0.0 and z > top:
-            return NO_HIT
-        if i < 0 or i > H - 2 or j < 0 or j > W - 2:
-            return NO_HIT
-        ti = i // tile
-        tj = j // tile
-        if ti != open_ti or tj != open_tj:
+    while not w.over:
+        z = z0 + dz * w.s
+        if w.s >= s_end or (dz >= 0.0 and z > top) or w.i < 0 or w.i > H - 2 or w.j < 0 or w.j > W - 2:
+            return ended(w, NO_HIT)
+        ti = w.i // tile
+        tj = w.j // tile
+        if ti != w.open_ti or tj != w.open_tj:
             # entering a tile: skip it whole if the ray passes above its highest vertex
-            exits = tile_exits(u0, v0, inv_du, inv_dv, ti, tj, tile, step_i, step_j)
-            t_tile = wp.min(wp.min(exits[0], exits[1]), t_end)
-            if wp.min(z, z0 + dz * t_tile) > tile_max[b, ti, tj]:
-                if t_tile >= t_end:
-                    return NO_HIT
-                t = wp.max(t, t_tile)
-                entered = cell_beyond_tile(exits, t, i, j, ti, tj, tile, u0, v0, du, dv, step_i, step_j)
-                i = entered[0]
-                j = entered[1]
+            exits = tile_exits(line, ti, tj, tile)
+            s_tile = wp.min(wp.min(exits[0], exits[1]), s_end)
+            if wp.min(z, z0 + dz * s_tile) > tile_max[b, ti, tj]:
+                w = skip_tile(w, line, exits, s_tile, s_end, ti, tj, tile)
                 continue
-            open_ti = ti
-            open_tj = tj
-        t_u = next_boundary(u0, inv_du, i, step_i)
-        t_v = next_boundary(v0, inv_dv, j, step_j)
-        t_cell = wp.max(wp.min(wp.min(t_u, t_v), t_end), t)
-        corner = corner_heights(heights, b, i, j)
-        if wp.min(z, z0 + dz * t_cell) <= wp.max(wp.max(corner[0], corner[1]), wp.max(corner[2], corner[3])):
-            hit = cell_hit(corner[0], corner[1], corner[2], corner[3], u0 - float(i), v0 - float(j), z0, du, dv, dz, t, t_cell)
-            if hit != NO_HIT:
-                return hit
-        if t_u <= t_v:
-            i += step_i
-        else:
-            j += step_j
-        t = t_cell
-    return NO_HIT
+            w.open_ti = ti
+            w.open_tj = tj
+        w = cross_cell(w, line, corner_heights(heights, b, w.i, w.j), z, z0, dz, s_end)
+    return w
 
 
 @wp.func
@@ -312,7 +406,8 @@ def cast_rays(
     augment: int,
     points: wp.array2d(dtype=wp.vec3),
 ):
-    """One thread per (scan, ray): every ray of every scan in the batch in one launch.
+    """One thread per (scan, ray): every ray of every scan in the batch in one launch, each
+    walked on its own (``walk`` with ``s`` = range in metres).
 
     Rays stop where they leave the square ``+-reach`` metres around the sensor (``reach <= 0``:
     the whole heightfield), so a caller that only bins points into a map casts no further.
@@ -321,14 +416,10 @@ def cast_rays(
     H = heights.shape[1]
     W = heights.shape[2]
     d = directions[r]
-    u0 = 0.5 * float(H - 1)
-    v0 = 0.5 * float(W - 1)
-    du = d[0] / cell
-    dv = d[1] / cell
-    box = reach_box(H, W, cell, reach)
-    t_end = wp.min(max_range, wp.min(slab_exit(u0, du, box[0], box[1]), slab_exit(v0, dv, box[2], box[3])))
-    t = trace_heightfield(heights, tile_max, terrain_max[b], tile, b, u0, v0, sensor_z[b], du, dv, d[2], t_end)
-    write_return(points, b, r, d, t, min_range, max_range, range_noise_std, dropout, seed, augment)
+    line = grid_line(0.5 * float(H - 1), 0.5 * float(W - 1), d[0] / cell, d[1] / cell)
+    t_end = wp.min(max_range, box_exit(line, reach_box(H, W, cell, reach)))
+    w = walk(walk_start(line), line, heights, tile_max, b, tile, terrain_max[b], sensor_z[b], d[2], t_end)
+    write_return(points, b, r, d, w.hit, min_range, max_range, range_noise_std, dropout, seed, augment)
 
 
 @wp.kernel
@@ -356,11 +447,11 @@ def cast_columns(
 
     The rays of a column lie in one vertical plane through the sensor, and in that plane a
     lower ray meets the terrain no farther than a higher one (where the higher ray meets the
-    surface, the lower one is already below it). So a single DDA walk outward along the
-    column's azimuth serves every ring: the lowest ring not yet hit is tested cell by cell;
-    when it hits, the next ring is tested from the same cell on. A tile (or cell) the lowest
-    ring passes above is passed by every higher ring too. The walk is parameterised by
-    horizontal distance ``s``; ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
+    surface, the lower one is already below it). So a single walk outward along the column's
+    azimuth (``walk`` with ``s`` = horizontal distance in metres) serves every ring: the
+    lowest ring not yet hit is tested cell by cell; when it is over, the next ring goes on from
+    the same cell. A tile (or cell) the lowest ring passes above is passed by every higher ring
+    too. Ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
     Needs every ray off the vertical (``cos(e) > 0``) and rays ordered ring-major, lowest ring
     first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding. Thread
     ``c`` walks column ``first_column + c * column_step``, so processes can share a scan's columns.
@@ -372,81 +463,17 @@ def cast_columns(
     columns = directions.shape[0] // rings
     d0 = directions[c]
     h0 = wp.sqrt(d0[0] * d0[0] + d0[1] * d0[1])
-    du = d0[0] / (h0 * cell)  # grid cells per metre of horizontal travel
-    dv = d0[1] / (h0 * cell)
-    u0 = 0.5 * float(H - 1)
-    v0 = 0.5 * float(W - 1)
+    line = grid_line(0.5 * float(H - 1), 0.5 * float(W - 1), d0[0] / (h0 * cell), d0[1] / (h0 * cell))  # cells per metre of horizontal travel
+    s_box = box_exit(line, reach_box(H, W, cell, reach))
     z0 = sensor_z[b]
     top = terrain_max[b]
-    box = reach_box(H, W, cell, reach)
-    s_box = wp.min(slab_exit(u0, du, box[0], box[1]), slab_exit(v0, dv, box[2], box[3]))
-    step_i = axis_step(du)
-    step_j = axis_step(dv)
-    inv_du = inverse(du, step_i)
-    inv_dv = inverse(dv, step_j)
-    s = float(0.0)
-    i = cell_index(u0, step_i)
-    j = cell_index(v0, step_j)
-    open_ti = int(-1)
-    open_tj = int(-1)
-    k = int(0)
-    r = c
-    d = d0
-    h = h0
-    slope = d0[2] / h0
-    s_end = wp.min(s_box, max_range * h0)
-    while k < rings:
-        z = z0 + slope * s
-        t_hit = NO_HIT
-        ring_done = bool(False)
-        if s >= s_end or (slope >= 0.0 and z > top) or i < 0 or i > H - 2 or j < 0 or j > W - 2:
-            ring_done = True  # this ring has left its range, risen above everything, or left the grid
-        else:
-            ti = i // tile
-            tj = j // tile
-            skipped = bool(False)
-            if ti != open_ti or tj != open_tj:
-                exits = tile_exits(u0, v0, inv_du, inv_dv, ti, tj, tile, step_i, step_j)
-                s_tile = wp.min(wp.min(exits[0], exits[1]), s_end)
-                if wp.min(z, z0 + slope * s_tile) > tile_max[b, ti, tj]:
-                    skipped = True
-                    if s_tile >= s_end:
-                        ring_done = True
-                    else:
-                        s = wp.max(s, s_tile)
-                        entered = cell_beyond_tile(exits, s, i, j, ti, tj, tile, u0, v0, du, dv, step_i, step_j)
-                        i = entered[0]
-                        j = entered[1]
-                else:
-                    open_ti = ti
-                    open_tj = tj
-            if not skipped:
-                t_u = next_boundary(u0, inv_du, i, step_i)
-                t_v = next_boundary(v0, inv_dv, j, step_j)
-                s_cell = wp.max(wp.min(wp.min(t_u, t_v), s_end), s)
-                corner = corner_heights(heights, b, i, j)
-                if wp.min(z, z0 + slope * s_cell) <= wp.max(wp.max(corner[0], corner[1]), wp.max(corner[2], corner[3])):
-                    hit = cell_hit(corner[0], corner[1], corner[2], corner[3], u0 - float(i), v0 - float(j), z0, du, dv, slope, s, s_cell)
-                    if hit != NO_HIT:
-                        t_hit = hit / h
-                        ring_done = True
-                if not ring_done:
-                    if s_cell >= s_end:
-                        ring_done = True  # the ring's range ends inside this cell
-                    else:
-                        if t_u <= t_v:
-                            i += step_i
-                        else:
-                            j += step_j
-                        s = s_cell
-        if ring_done:
-            write_return(points, b, r, d, t_hit, min_range, max_range, range_noise_std, dropout, seed, augment)
-            k += 1
-            if k < rings:
-                r = k * columns + c
-                d = directions[r]
-                h = wp.sqrt(d[0] * d[0] + d[1] * d[1])
-                slope = d[2] / h
-                s_end = wp.min(s_box, max_range * h)
-                open_ti = -1  # the new ring re-checks the tile it is in
-                open_tj = -1
+    w = walk_start(line)
+    for k in range(rings):
+        r = k * columns + c
+        d = directions[r]
+        h = wp.sqrt(d[0] * d[0] + d[1] * d[1])
+        w = walk(resumed(w), line, heights, tile_max, b, tile, top, z0, d[2] / h, wp.min(s_box, max_range * h))
+        t = NO_HIT
+        if w.hit != NO_HIT:
+            t = w.hit / h
+        write_return(points, b, r, d, t, min_range, max_range, range_noise_std, dropout, seed, augment)

@@ -44,6 +44,7 @@ INVALID = {
     "terrain.dem.nodata": "ignore",
     "terrain.dem.max_nodata": 1.0,
     "terrain.dem.scale": -1.0,
+    "terrain.dem.height_scale": 0.0,
     "terrain.dem.heading": "sometimes",
     "terrain.dem.mirror": "sometimes",
     "terrain.dem.detrend": "sometimes",

@@ -45,31 +45,33 @@ def dem_heightfields(count: int, size: int, cell: float, seed: int = 0, dem_pixe
     return out
 
 
+def _fixed_set(name: str, sim, size: int, device: str, heights=None, seed: int = TEST_SEED_BASE + 4096) -> EvalSet:
+    b = generate_batch(size, sim, seed=seed, device=device, heights=heights)
+    return EvalSet(name, sim.data.noise, sim, [seed], b.scan.cpu().clone(), b.mask.cpu().clone(), b.target.cpu().clone())
+
+
+def synthetic_edge_sets(size: int = 32, device: str = "cpu") -> list[EvalSet]:
+    """The simulator just outside the shipped model's training ranges (fixed seeds, no augmentation)."""
+    sim_relief = setting_config("octave5")
+    sim_relief.terrain.amplitude = 6.0  # training drew up to 4 m
+    sim_long = setting_config("octave3")
+    sim_long.terrain.feature_size = 80.0  # training drew up to 40 m
+    sim_long.terrain.amplitude = 5.0
+    sim_mount = setting_config("octave5")
+    sim_mount.lidar.mount_height = 3.2  # training drew 1.2-2.5 m
+    sim_fine = setting_config("octave5", lidar="vlp16")
+    sim_fine.lidar.azimuth_step_deg = 0.1  # training coarsened every sensor to >= 0.4 deg
+    return [_fixed_set("relief 6 m (octave5)", sim_relief, size, device), _fixed_set("features 80 m, relief 5 m", sim_long, size, device),
+            _fixed_set("mount 3.2 m", sim_mount, size, device), _fixed_set("VLP-16 at 0.1 deg", sim_fine, size, device)]
+
+
 def robustness_sets(size: int = 32, device: str = "cpu") -> list[EvalSet]:
-    """Test sets outside the shipped model's training ranges (fixed seeds, no augmentation)."""
-    sets = []
-
-    def add(name: str, sim, heights=None, seed: int = TEST_SEED_BASE + 4096):
-        b = generate_batch(size, sim, seed=seed, device=device, heights=heights)
-        sets.append(EvalSet(name, sim.data.noise, sim, [seed], b.scan.cpu().clone(), b.mask.cpu().clone(), b.target.cpu().clone()))
-
-    sim = setting_config("octave5")
-    sim.terrain.amplitude = 6.0  # training drew up to 4 m
-    add("relief 6 m (octave5)", sim)
-    sim = setting_config("octave3")
-    sim.terrain.feature_size = 80.0  # training drew up to 40 m
-    sim.terrain.amplitude = 5.0
-    add("features 80 m, relief 5 m", sim)
-    sim = setting_config("octave5")
-    sim.lidar.mount_height = 3.2  # training drew 1.2-2.5 m
-    add("mount 3.2 m", sim)
-    sim = setting_config("octave5", lidar="vlp16")
-    sim.lidar.azimuth_step_deg = 0.1  # training coarsened every sensor to >= 0.4 deg
-    add("VLP-16 at 0.1 deg", sim)
+    """The synthetic edges and matplotlib's sample DEM, rescaled with slopes kept."""
+    sets = synthetic_edge_sets(size, device)
     for noise in (0.0, 0.05):
         sim = copy.deepcopy(setting_config("octave5", noise))
         dem = dem_heightfields(size, terrain_size(sim), sim.terrain.cell, seed=1)
-        add(f"real DEM (matplotlib jacksboro), noise {noise:g}", sim, heights=dem)
+        sets.append(_fixed_set(f"real DEM (matplotlib jacksboro), noise {noise:g}", sim, size, device, heights=dem))
     return sets
 
 

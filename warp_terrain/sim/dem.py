@@ -65,8 +65,11 @@ class DemConfig:
       ``"fill"`` keeps them, holes filled smoothly (a window with no valid ground is redrawn).
     - ``max_nodata`` (fraction of a window's samples, in [0, 1)): the most nodata ``skip`` keeps.
     - ``scale`` (dimensionless): horizontal scale of the rasters in the simulation; 1 is true
-      scale, 0.5 shrinks the ground to half its size (slopes twice as steep). Heights are never
-      scaled. Terrain at any other scale than 1 is not real ground: label it so (``label()``).
+      scale, 0.5 shrinks the ground to half its size (slopes twice as steep).
+    - ``height_scale`` (dimensionless): vertical scale of the heights; set it equal to ``scale``
+      to shrink a coarse raster uniformly, slopes kept (a 20 m DEM at ``scale=height_scale=0.05``
+      becomes 1 m cells of the same slopes). Terrain at any scale other than 1 is not real ground
+      at its real size: label it so (``label()``).
     - ``heading`` (bool): random heading uniform in [0, 2 pi) rad per window (else north-up).
     - ``mirror`` (bool): mirror each window with probability 0.5.
     - ``detrend`` (bool): subtract each window's least-squares plane (the regional slope).
@@ -79,6 +82,7 @@ class DemConfig:
     nodata: str = "skip"
     max_nodata: float = 0.0
     scale: float = 1.0
+    height_scale: float = 1.0
     heading: bool = True
     mirror: bool = True
     detrend: bool = False
@@ -90,12 +94,13 @@ class DemConfig:
         require(isinstance(self.files, (list, tuple)), f"{name}.files", self.files, "must be a list of paths")
         for k, path in enumerate(self.files):
             require(isinstance(path, str) and path.strip() != "", f"{name}.files[{k}]", path, "must be a non-empty path")
-        for key in ("ground_cell", "max_nodata", "scale"):
+        for key in ("ground_cell", "max_nodata", "scale", "height_scale"):
             check_finite(f"{name}.{key}", getattr(self, key))
         require(self.ground_cell > 0, f"{name}.ground_cell", self.ground_cell, "must be > 0 (metres)")
         require(self.nodata in NODATA_MODES, f"{name}.nodata", self.nodata, f"must be one of {', '.join(NODATA_MODES)}")
         require(0.0 <= self.max_nodata < 1.0, f"{name}.max_nodata", self.max_nodata, "must be in [0, 1) (a share of the window)")
         require(self.scale > 0, f"{name}.scale", self.scale, "must be > 0 (1 = true scale)")
+        require(self.height_scale > 0, f"{name}.height_scale", self.height_scale, "must be > 0 (1 = true heights)")
         for key in ("heading", "mirror", "detrend", "assume_metres"):
             require(isinstance(getattr(self, key), bool), f"{name}.{key}", getattr(self, key), "must be true or false")
         require(isinstance(self.tries, int) and not isinstance(self.tries, bool) and self.tries >= 1, f"{name}.tries", self.tries, "must be an integer >= 1")
@@ -109,9 +114,11 @@ class DemConfig:
 
     def label(self) -> str:
         """``"true scale"``, or how the ground was rescaled (for names of rescaled families)."""
-        if self.scale == 1.0:
+        if self.scale == 1.0 and self.height_scale == 1.0:
             return "true scale"
-        return f"rescaled x{self.scale:g} horizontally (slopes x{1.0 / self.scale:.3g})"
+        if self.scale == self.height_scale:
+            return f"rescaled x{self.scale:g} uniformly (slopes kept)"
+        return f"rescaled x{self.scale:g} horizontally, x{self.height_scale:g} vertically (slopes x{self.height_scale / self.scale:.3g})"
 
 
 class DemFileError(ValueError):
@@ -547,15 +554,15 @@ def dem_windows(
     """
     require(len(dems) > 0, "terrain.dem.files", [], "give at least one raster")
     check_fit(dems, size, cell, cfg)
-    if cfg.scale != 1.0:
-        warnings.warn(f"terrain.dem.scale={cfg.scale:g}: the ground is {cfg.label()}, not true scale", stacklevel=2)
+    if cfg.scale != 1.0 or cfg.height_scale != 1.0:
+        warnings.warn(f"terrain.dem.scale={cfg.scale:g}, height_scale={cfg.height_scale:g}: the ground is {cfg.label()}, not true scale", stacklevel=2)
     areas = np.array([d.valid_area for d in dems], dtype=np.float64)
     weights = areas / areas.sum()
     out = np.empty((count, size, size), dtype=np.float32)
     for b in range(count):
         rng = np.random.default_rng([int(seed) & 0x7FFFFFFF, DEM_STREAM, int(first) + b])
         heights, draw = _one_window(dems, weights, size, cell, cfg, rng)
-        out[b] = heights
+        out[b] = heights if cfg.height_scale == 1.0 else heights * np.float32(cfg.height_scale)
         if draws is not None:
             draws.append(draw)
     return out

@@ -1,7 +1,9 @@
 """The Pix2Pix model: a generator, a PatchGAN, their losses and optimisers, one training step.
 
 As in pytorch-CycleGAN-and-pix2pix, the model states its nets (`model_names`), losses
-(`loss_names`) and visuals (`visual_names`), and the training loop stays generic:
+(`loss_names`) and visuals (`visual_names`); the training loop (`training.session`) drives it
+through `set_input`, `optimize_parameters` and `loss_values`, and adds only the per-cell L1
+weights and the learning-rate schedule:
 
     model = build_model(cfg).to(device)
     for condition, target in batches:

@@ -29,7 +29,7 @@ ALLOWED: dict[str, set[str]] = {
     "training": {"core", "sim", "data", "models", "inference", "evaluation"},
     "compose": {"core", "sim", "models", "training"},
     "plots": {"core", "sim", "data", "models", "inference", "evaluation", "training", "compose"},
-    "export": {"core"},
+    "export": {"core", "sim", "inference"},
     "bench": {"core", "kernels", "sim", "data", "models", "inference", "evaluation", "training", "compose"},
     "cli": {"core", "sim", "data", "models", "inference", "evaluation", "training", "compose", "plots", "export", "bench"},
     "api": {"core", "sim", "inference", "export"},  # warp_terrain/__init__.py: the public names

@@ -8,16 +8,20 @@ minimises the Gaussian negative log-likelihood of those errors (Laves et al., 20
 calibrated regression uncertainty in medical imaging with deep learning"). The pairs come from
 validation seeds beyond those training validates on, so neither training nor the test sets
 (``evaluation.testsets``) see them.
+
+``package_model`` (``warp-terrain package-model``) turns a training checkpoint into a small
+``Reconstructor`` file, fitting that factor on the run's own data settings first.
 """
 
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 
-import torch
-
-from ..sim import SimConfig
 from ..data.stream import make_pair, validation_seed
+from ..inference.reconstructor import Reconstructor
+from ..sim import SimConfig, as_sim_config
 
 #: First validation chunk used for calibration (training validates on chunks 0, 1, ...).
 CALIBRATION_FIRST_CHUNK = 4096
@@ -46,3 +50,27 @@ def fit_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str = "cpu", c
     if cells == 0:
         raise ValueError("no unobserved cell in the calibration pairs")
     return math.sqrt(total / cells)
+
+
+def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None) -> dict:
+    """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
+    to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
+    ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
+    validation pairs of the run's own data settings (:func:`fit_sigma_scale`).
+
+    Returns ``{"out", "bytes", "step", "sigma_scale"}`` (``sigma_scale`` None if not fitted).
+    """
+    if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
+        raise ValueError(f"calibrate={calibrate!r}: must be an integer >= 0")
+    out = Path(out)
+    if not out.resolve().parent.is_dir():
+        raise ValueError(f"out={str(out)!r}: the folder does not exist")
+    rec = Reconstructor.load(checkpoint, device=device)
+    if calibrate and rec.has_uncertainty:
+        run = rec.meta.get("config") or {}
+        if not all(key in run for key in ("terrain", "lidar", "data")):
+            raise ValueError(f"{str(checkpoint)!r}: holds no run config to calibrate on (use --calibrate 0)")
+        sim = as_sim_config({key: run[key] for key in ("terrain", "lidar", "data")})
+        rec.meta["sigma_scale"] = fit_sigma_scale(rec, sim, calibrate, device=rec.device)
+    rec.save(out)
+    return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale")}

@@ -114,3 +114,20 @@ def test_a_dem_family_is_real_ground_scanned(tmp_path):
     results = evaluate_real({"model": truth}, data_dir=tmp_path, size=2, device="cpu", synthetic=False)
     (entry,) = [e for e in results["families"] if e["family"] == DEM_FAMILIES[0].name]
     assert entry["metrics"]["model"]["rmse_unobserved"] == 0.0
+
+
+def test_map_statistics_of_a_tilted_plane_and_a_box():
+    from warp_terrain.evaluation.coverage import map_statistics
+
+    n, cell, deg = 41, 0.25, 12.0
+    c = (np.arange(n) - 20) * cell
+    x, y = np.meshgrid(c, c, indexing="ij")
+    plane = np.tan(np.radians(deg)) * (0.6 * x + 0.8 * y)  # downhill direction (0.6, 0.8)
+    target = torch.from_numpy(plane).float()[None, None]
+    stats = map_statistics(target, torch.ones_like(target), cell)
+    assert stats["slope_deg_median"] == pytest.approx(deg, abs=1e-3)
+    assert stats["local_slope_deg_median"] == pytest.approx(deg, abs=1e-2)
+    assert stats["relief_m_median"] == pytest.approx(np.tan(np.radians(deg)) * 1.4 * 40 * cell, rel=1e-5)
+    box = target.clone()
+    box[..., 10:14, 10:15] += 1.0  # 20 cells of obstacle
+    assert map_statistics(box, torch.ones_like(box), cell, ground=target)["obstacle_share"] == pytest.approx(20 / n**2)

@@ -39,12 +39,14 @@ from scipy import ndimage
 from ..data.seeds import TEST_SEED_BASE
 from ..sim import generate_batch, project_points, resolve_device
 from ..sim.dem import DemConfig
+from ..sim.presets import TERRAIN_PRESETS
 from ..sim.terrain import ObstacleConfig
 from .baselines import BASELINES
+from .coverage import map_statistics, statistics_markdown
 from .metrics import range_cells
 from .robustness import synthetic_edge_sets
 from .scoring import score
-from .testsets import EvalSet, bare_config, setting_config
+from .testsets import EvalSet, bare_config, make_eval_set, setting_config
 
 __all__ = ["DEM_FAMILIES", "SCAN_FAMILIES", "RealFamily", "evaluate_real", "real_data_dir", "real_markdown"]
 
@@ -57,6 +59,8 @@ RAISED_M = 0.3
 #: The neighbourhood (cells, radius) whose lowest observed height stands for the local ground.
 GROUND_RADIUS_CELLS = 8
 MISSING_HINT = "run `make real-data` (or set WARP_TERRAIN_REAL_DATA to the folder it made)"
+#: The synthetic settings whose statistics are shown beside the real families' (those that exist).
+WORLD_SETTINGS = ("octave3", "octave5", "flat_cylinders", "negative_obstacles", "wide")
 
 
 @dataclass(frozen=True)
@@ -221,7 +225,7 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
             ts = dem_family_set(family, folder, size, device)
             in_range = range_cells(ts.sim.data.map_size, ts.sim.data.map_cell, ts.sim.lidar.max_range)
             entry = {"family": family.name, "kind": "dem", "note": family.note, "observed_share": float((ts.mask > 0).float().mean()),
-                     "metrics": {}}
+                     "metrics": {}, "statistics": map_statistics(ts.target, ts.mask, ts.sim.data.map_cell, ts.ground)}
             run(entry, ts.scan, ts.mask, lambda pred, ts=ts, in_range=in_range: score(pred, ts, in_range))
         else:
             ss = scan_family_set(family, folder, repeats, 121, 0.25, REAL_SEED_BASE + 100 + SCAN_FAMILIES.index(family))
@@ -232,9 +236,21 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
         for ts in synthetic_edge_sets(size, device):
             in_range = range_cells(ts.sim.data.map_size, ts.sim.data.map_cell, ts.sim.lidar.max_range)
             entry = {"family": ts.terrain, "kind": "synthetic", "note": "outside the training ranges",
-                     "observed_share": float((ts.mask > 0).float().mean()), "metrics": {}}
+                     "observed_share": float((ts.mask > 0).float().mean()), "metrics": {},
+                     "statistics": map_statistics(ts.target, ts.mask, ts.sim.data.map_cell)}
             run(entry, ts.scan, ts.mask, lambda pred, ts=ts, in_range=in_range: score(pred, ts, in_range))
+        results["world"] = world_statistics(size, device)
     return results
+
+
+def world_statistics(size: int, device: str) -> list[tuple[str, dict]]:
+    """``(setting, map_statistics)`` of the synthetic settings in ``WORLD_SETTINGS`` (test seeds)."""
+    rows = []
+    for name in WORLD_SETTINGS:
+        if name in TERRAIN_PRESETS:
+            ts = make_eval_set(name, 0.0, size, device=device)
+            rows.append((f"synthetic: {name}", map_statistics(ts.target, ts.mask, ts.sim.data.map_cell, ts.ground)))
+    return rows
 
 
 def headline(entry: dict) -> str:
@@ -266,6 +282,10 @@ def real_markdown(results: dict, model: str = "model") -> str:
             mm, bm = e["metrics"][model], e["metrics"][best]
             lines.append(f"| {e['family']} | {mm['rmse_hidden_ground']:.4f} / {mm['rmse_hidden_raised']:.4f} ({100 * mm['raised_share']:.0f} %) "
                          f"| {best}: {bm['rmse_hidden_ground']:.4f} / {bm['rmse_hidden_raised']:.4f} |")
+    stats = [(e["family"], e["statistics"]) for e in results["families"] if "statistics" in e] + list(results.get("world", []))
+    if stats:
+        lines += ["", "What the maps look like (the true surface; `wide` and the paper settings are what training can draw):", "",
+                  statistics_markdown(stats).rstrip("\n")]
     for m in results["missing"]:
         lines.append(f"\nmissing: {m['family']} ({', '.join(m['files'])}): {m['hint']}")
     return "\n".join(lines) + "\n"

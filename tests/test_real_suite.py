@@ -131,3 +131,16 @@ def test_map_statistics_of_a_tilted_plane_and_a_box():
     box = target.clone()
     box[..., 10:14, 10:15] += 1.0  # 20 cells of obstacle
     assert map_statistics(box, torch.ones_like(box), cell, ground=target)["obstacle_share"] == pytest.approx(20 / n**2)
+
+
+def test_evaluate_real_from_the_command_line(tmp_path, capsys):
+    from warp_terrain.cli import main
+
+    family = SCAN_FAMILIES[1]
+    for name in family.files:
+        flat_scan_with_a_box(tmp_path / name)
+    assert main(["evaluate", "--real", "--real-data", str(tmp_path), "--baselines", "nearest,linear", "--repeats", "1",
+                 "--size", "1", "--markdown", str(tmp_path / "real.md")]) == 0
+    out = capsys.readouterr().out
+    assert family.name in out and "missing:" in out and (tmp_path / "real.md").read_text() in out + "\n"
+    assert main(["evaluate", "--real", "--robustness"]) == 2

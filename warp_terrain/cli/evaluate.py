@@ -20,6 +20,12 @@ def add_evaluate(sub) -> None:
     _add_tta(p)
     p.add_argument("--robustness", action="store_true",
                    help="instead, score on settings outside the training ranges and on real DEM terrain (matplotlib's sample DEM)")
+    p.add_argument("--real", action="store_true",
+                   help="instead, the real-data suite: real DEM windows (true scale and rescaled), real LIDAR scans with "
+                        "20%% of their observed cells hidden, and the synthetic ranges' edges; needs `make real-data`")
+    p.add_argument("--real-data", default=None, metavar="DIR",
+                   help="the folder `make real-data` wrote (default: $WARP_TERRAIN_REAL_DATA or ./real_data)")
+    p.add_argument("--repeats", type=_positive_int, default=3, metavar="K", help="--real: hidden-cell draws per real scan (default: 3)")
     p.add_argument("--settings", default="octave3,octave5,flat_cylinders,negative_obstacles", metavar="NAMES",
                    help="comma-separated terrain settings (conf/terrain) (default: octave3,octave5,flat_cylinders,negative_obstacles)")
     p.add_argument("--noise", type=_noise_levels, default=[0.0, 0.05, 0.10], metavar="LEVELS",
@@ -58,6 +64,21 @@ def cmd_evaluate(args) -> int:
         predictors["model"] = predictor
     if not predictors:
         raise ValueError("nothing to evaluate: --baselines none needs --checkpoint")
+    if args.real and args.robustness:
+        raise ValueError("--real and --robustness are two different suites: give one")
+    if args.real:
+        from ..evaluation.real import evaluate_real, real_markdown
+
+        results = evaluate_real(predictors, data_dir=args.real_data, size=size if args.size or args.quick else 32,
+                                repeats=args.repeats, device=args.device or "cpu", progress=progress)
+        if model_info is not None:
+            results["model"] = model_info
+        text = real_markdown(results)
+        if args.markdown is not None:
+            with atomic_open(Path(args.markdown), "w") as f:
+                f.write(text)
+        print(json.dumps(json_ready(results), indent=2, allow_nan=False) if args.json else text)
+        return 0
     if args.robustness:
         from ..evaluation.robustness import evaluate_robustness, robustness_markdown
 

@@ -13,9 +13,9 @@ from ..core.geometry import MAP_SIZE, MapGeometry
 from ..core.torchfile import atomic_save
 from ..models import ModelConfig, build_generator
 from ..models.uncertainty import split_output
-from .pointclouds import check_points
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
+from .pointclouds import check_points
 
 PRETRAINED = "reconstructor.pt"
 
@@ -66,7 +66,7 @@ class Reconstructor:
 
     # -- files --------------------------------------------------------------------------------
     @classmethod
-    def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True) -> "Reconstructor":
+    def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")

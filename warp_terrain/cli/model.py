@@ -17,8 +17,10 @@ def add_reconstruct(sub) -> None:
                                    "deviation in metres, if the model predicts one) and a PNG preview.")
     p.add_argument("file", help="the point cloud (.npy (N,3), .ply, .pcd, .las, .laz)")
     p.add_argument("--out", default=None, metavar="OUT.npz", help="output (default: FILE with .npz); a PNG preview is written beside it")
-    p.add_argument("--map-size", type=_positive_int, default=121, metavar="S", help="cells per side (default 121)")
-    p.add_argument("--map-cell", type=float, default=0.25, metavar="M", help="cell size in metres (default 0.25)")
+    p.add_argument("--map-size", type=_positive_int, default=None, metavar="S",
+                   help="cells per side (default: the model's training maps, 121 for the shipped model)")
+    p.add_argument("--map-cell", type=float, default=None, metavar="M",
+                   help="cell size in metres (default: the model's training maps, 0.25 for the shipped model)")
     p.add_argument("--transform", default=None, metavar="VALUES",
                    help="points -> sensor frame: 16 comma-separated values (a 4x4 matrix, row-major) or 6 (x,y,z,roll,pitch,yaw in m and degrees)")
     _add_model(p)
@@ -47,12 +49,13 @@ def cmd_reconstruct(args) -> int:
     if matrix is not None:
         points = apply_transform(points, matrix)
     rec = Reconstructor.load(args.model, device=args.device, tta=args.tta)
-    maps = rec.reconstruct_all(points, args.map_size, args.map_cell)
-    write_map(out, maps, MapGeometry(args.map_size, args.map_cell))
+    geometry = MapGeometry(*rec.resolve_geometry(args.map_size, args.map_cell))
+    maps = rec.reconstruct_all(points, geometry.size, geometry.cell)
+    write_map(out, maps, geometry)
     png = out.with_suffix(".png")
-    save_map_preview(maps["height"], maps["mask"], args.map_cell, png, title=source.name)
+    save_map_preview(maps["height"], maps["mask"], geometry.cell, png, title=source.name)
     print(json.dumps({"npz": str(out), "png": str(png), "points": int(len(points)), "observed_cells": int(maps["mask"].sum()),
-                      "map_size": args.map_size, "map_cell": args.map_cell, "uncertainty": "uncertainty" in maps}))
+                      "map_size": geometry.size, "map_cell": geometry.cell, "uncertainty": "uncertainty" in maps}))
     return 0
 
 
@@ -64,7 +67,8 @@ def add_export_onnx(sub) -> None:
                                    "check it against torch on generated scans; prints the largest difference and the "
                                    "latency of both.")
     p.add_argument("out", help="OUT.onnx")
-    p.add_argument("--map-size", type=_positive_int, default=121, metavar="S", help="cells per side (fixed in the graph; default 121)")
+    p.add_argument("--map-size", type=_positive_int, default=None, metavar="S",
+                   help="cells per side, fixed in the graph (default: the model's training maps, 121 for the shipped model)")
     _add_model(p)
     p.set_defaults(func=cmd_export_onnx)
 
@@ -75,8 +79,9 @@ def cmd_export_onnx(args) -> int:
     from ..sim import generate_batch
 
     rec = Reconstructor.load(args.model, device="cpu")
-    path = export_onnx(rec.generator, args.out, rec.model_config.in_channels, args.map_size, uncertainty=rec.has_uncertainty)
-    batch = generate_batch(4, {"data": {"map_size": args.map_size}}, seed=0, device="cpu")
+    map_size = rec.resolve_geometry(args.map_size, None)[0]
+    path = export_onnx(rec.generator, args.out, rec.model_config.in_channels, map_size, uncertainty=rec.has_uncertainty)
+    batch = generate_batch(4, {"data": {"map_size": map_size}}, seed=0, device="cpu")
     report = check_onnx(rec.generator, path, rec.condition(batch.scan, batch.mask), uncertainty=rec.has_uncertainty)
     report["onnx"] = str(path)
     print(json.dumps(report))

@@ -133,7 +133,8 @@ class Reconstructor:
         default = MapGeometry()
         return MapGeometry(int(data.get("map_size", default.size)), float(data.get("map_cell", default.cell)))
 
-    def _geometry(self, map_size: int | None, map_cell: float | None) -> tuple[int, float]:
+    def resolve_geometry(self, map_size: int | None, map_cell: float | None) -> tuple[int, float]:
+        """``(map_size, map_cell)``: the given values, or the model's where None."""
         g = self.geometry
         return (g.size if map_size is None else map_size), (g.cell if map_cell is None else map_cell)
 
@@ -156,7 +157,7 @@ class Reconstructor:
     def reconstruct_all(self, points, map_size: int | None = None, map_cell: float | None = None) -> dict[str, np.ndarray]:
         """``{"height", "mask"}`` and, if the model has an uncertainty head, ``"uncertainty"``
         (each cell's standard deviation of the height, metres): ``(map_size, map_size)`` arrays."""
-        map_size, map_cell = self._geometry(map_size, map_cell)
+        map_size, map_cell = self.resolve_geometry(map_size, map_cell)
         check_map(map_size, map_cell)
         if self.model_config.name == "paper" and map_size != MAP_SIZE:
             raise ValueError(f"map_size={map_size}: this model is the paper's net for 121x121 maps")

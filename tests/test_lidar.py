@@ -227,5 +227,5 @@ def test_hydra_structured_config_roundtrip():
     assert isinstance(cfg, LidarConfig)
     assert cfg.channels == 128 and cfg.dropout == 0.2
     assert cfg.validate().num_rays == 128 * 2048
-    with pytest.raises(Exception):
+    with pytest.raises(omegaconf.errors.ValidationError):
         OmegaConf.merge(schema, OmegaConf.from_dotlist(["max_range=far"]))

@@ -21,6 +21,8 @@ if not _os.environ.get("WARP_TERRAIN_VERBOSE"):
     _wp.config.log_level = _wp.LOG_WARNING
 
 from .core.version import __version__  # noqa: E402
+from .export.usd import export_usd  # noqa: E402
+from .inference.reconstructor import Reconstructor  # noqa: E402
 from .sim import (  # noqa: E402
     Batch,
     DataConfig,
@@ -34,9 +36,6 @@ from .sim import (  # noqa: E402
     lidar_preset,
     project_points,
 )
-from .inference.reconstructor import Reconstructor  # noqa: E402
-from .export.usd import export_usd  # noqa: E402
-
 
 __all__ = [
     "Batch",

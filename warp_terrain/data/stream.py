@@ -26,7 +26,6 @@ from .disk import DiskPairs
 from .seeds import batch_seed, validation_seed
 
 
-
 def make_pair(sim: SimConfig, batch_size: int, seed: int, device: str) -> dict[str, torch.Tensor]:
     b = generate_batch(batch_size, sim, seed=seed, device=device)
     return {"scan": b.scan, "mask": b.mask, "target": b.target}

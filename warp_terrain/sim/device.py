@@ -12,7 +12,6 @@ import torch
 import warp as wp
 
 
-
 def resolve_device(device: str | torch.device | None = None) -> str:
     """The Warp device name (``"cpu"`` or ``"cuda:N"``) for a user's ``device`` argument."""
     wp.init()

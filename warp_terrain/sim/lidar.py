@@ -47,7 +47,6 @@ import copy
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Optional
 
 import numpy as np
 
@@ -338,7 +337,7 @@ def lidar_preset(name: str, **overrides: object) -> LidarConfig:
     (listing the valid ones) or an unknown/invalid override.
     """
     key = str(name).strip().lower().replace("_", "-")
-    preset: Optional[LidarConfig] = LIDAR_PRESETS.get(key)
+    preset: LidarConfig | None = LIDAR_PRESETS.get(key)
     if preset is None:
         raise ValueError(
             f"unknown LIDAR preset {name!r}; valid presets: {', '.join(LIDAR_PRESETS)}"

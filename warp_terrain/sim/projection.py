@@ -6,10 +6,10 @@ import numpy as np
 import torch
 import warp as wp
 
-from ..kernels import projection as projection_kernels
-from .device import resolve_device, to_warp
 from ..core.checks import check_finite, require
 from ..core.geometry import MAP_CELL, MAP_SIZE
+from ..kernels import projection as projection_kernels
+from .device import resolve_device, to_warp
 
 
 def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str, fill: float = 0.0):

@@ -16,6 +16,15 @@ plane a lower ray never meets the terrain beyond a higher one). The walk exists 
 walk is over; ``cast_rays`` runs it per ray, for rings that point straight up or down (no
 horizontal direction to walk a column by) and as the column walk's check in tests.
 
+Clutter (``kernels/clutter.py``): with a ``Canopy`` that is ``on``, each cell the walk visits
+also tests the ray against that cell's canopy slab ``[bottom, top]`` (the part of the ray's
+segment over the cell that lies inside it): the ray returns at the slab entry with probability
+``1 - (1 - density)^L`` for ``L`` metres inside (one seeded draw per ray and cell, so a scan is
+reproducible), unless it meets the ground first. Only ``cast_rays`` takes a canopy: the column
+walk's invariant fails for a layer a low ray can pass under (and a porous one each ray crosses
+with its own draws), so with clutter every ray is walked on its own. With the canopy off the
+walk does exactly what it does without it.
+
 Ray ``r`` of sample ``b`` starts at the sensor, above the heightfield's centre, and leaves
 with unit direction ``directions[r]`` (sensor frame = world axes). The hit is written in the
 sensor frame; rays with no return (no surface within range, outside ``[min_range, max_range]``
@@ -24,6 +33,7 @@ after noise, or dropped) are written as NaN.
 
 import warp as wp
 
+from .clutter import STREAM_CANOPY
 from .frames import dihedral_apply, sample_transform
 from .heightfield import plane_height
 from .rng import STREAM_RAYS, stream_state
@@ -230,6 +240,51 @@ def corner_heights(heights: wp.array3d(dtype=float), b: int, i: int, j: int) -> 
     return wp.vec4(heights[b, i, j], heights[b, i + 1, j], heights[b, i, j + 1], heights[b, i + 1, j + 1])
 
 
+@wp.struct
+class Canopy:
+    """The clutter layer the rays are tested against (``kernels/clutter.py``): per-cell slabs
+    ``[bottom, top]`` (world metres; empty where NaN or ``bottom >= top``) and ``density``
+    (return probability per metre inside, 1 = solid); ``on = 0``: no clutter (arrays unused).
+    ``key`` seeds the draws of one ray, ``metres`` is the ray's length per unit of the walk's ``s``."""
+
+    bottom: wp.array3d(dtype=float)
+    top: wp.array3d(dtype=float)
+    density: wp.array3d(dtype=float)
+    on: int
+    key: int
+    metres: float
+
+
+@wp.func
+def canopy_hit(canopy: Canopy, b: int, i: int, j: int, z0: float, dz: float, s0: float, s1: float) -> float:
+    """Where the ray ``z0 + dz s``, ``s`` in ``[s0, s1]`` over cell ``(i, j)``, returns from the
+    cell's canopy slab: its entry ``s``, drawn with probability ``1 - (1 - density)^L`` for the
+    ``L`` metres it spends inside (1 for a solid slab); NO_HIT if it passes or misses the slab."""
+    lo = canopy.bottom[b, i, j]
+    hi = canopy.top[b, i, j]
+    rho = canopy.density[b, i, j]
+    if not (rho > 0.0 and hi > lo):  # empty (NaN fails too) or transparent
+        return NO_HIT
+    enter = s0
+    leave = s1
+    if dz != 0.0:
+        s_lo = (lo - z0) / dz
+        s_hi = (hi - z0) / dz
+        enter = wp.max(s0, wp.min(s_lo, s_hi))
+        leave = wp.min(s1, wp.max(s_lo, s_hi))
+    elif z0 < lo or z0 > hi:
+        return NO_HIT
+    if not (leave > enter):
+        return NO_HIT
+    p = float(1.0)
+    if rho < 1.0:
+        p = 1.0 - wp.pow(1.0 - rho, (leave - enter) * canopy.metres)
+    state = wp.rand_init(canopy.key, i * canopy.top.shape[2] + j)
+    if wp.randf(state) < p:
+        return enter
+    return NO_HIT
+
+
 @wp.func
 def walk_start(line: Line) -> Walk:
     """A walk at the line's start (``s = 0``), in the cell it sets off into, no tile open yet."""
@@ -277,18 +332,27 @@ def skip_tile(w: Walk, line: Line, exits: wp.vec2, s_tile: float, s_end: float, 
 
 
 @wp.func
-def cross_cell(w: Walk, line: Line, corner: wp.vec4, z: float, z0: float, dz: float, s_end: float) -> Walk:
+def cross_cell(w: Walk, line: Line, corner: wp.vec4, z: float, z0: float, dz: float, s_end: float, canopy: Canopy, b: int) -> Walk:
     """The walk through its cell (corner heights ``corner``; the ray at height ``z`` on entering):
-    over where the ray meets the cell's triangles, else on in the neighbouring cell whose boundary
+    over where the ray meets the cell's triangles or returns from its canopy slab (the nearer of
+    the two, if ``canopy.on``), else on in the neighbouring cell whose boundary
     the line crosses first (or over, if the ray's end lies in this cell). A cell whose corners all
     lie below the ray over its segment is passed without the exact test."""
     t_u = next_boundary(line.u0, line.inv_du, w.i, line.step_i)
     t_v = next_boundary(line.v0, line.inv_dv, w.j, line.step_j)
     s_cell = wp.max(wp.min(wp.min(t_u, t_v), s_end), w.s)
+    hit = NO_HIT
     if wp.min(z, z0 + dz * s_cell) <= wp.max(wp.max(corner[0], corner[1]), wp.max(corner[2], corner[3])):
         hit = cell_hit(corner[0], corner[1], corner[2], corner[3], line.u0 - float(w.i), line.v0 - float(w.j), z0, line.du, line.dv, dz, w.s, s_cell)
+    if canopy.on != 0:
+        s_ground = s_cell
         if hit != NO_HIT:
-            return ended(w, hit)
+            s_ground = hit  # the ray's path through the slab ends where it meets the ground
+        c = canopy_hit(canopy, b, w.i, w.j, z0, dz, w.s, s_ground)
+        if c != NO_HIT and (hit == NO_HIT or c < hit):
+            hit = c
+    if hit != NO_HIT:
+        return ended(w, hit)
     if s_cell >= s_end:
         return ended(w, NO_HIT)
     if t_u <= t_v:
@@ -311,6 +375,7 @@ def walk(
     z0: float,
     dz: float,
     s_end: float,
+    canopy: Canopy,
 ) -> Walk:
     """The walk of the ray ``(line, z0 + dz s)``, ``s`` in ``[0, s_end]``, over heightfield ``b``,
     from where ``w`` stands until it is over: the one cell walk every ray takes.
@@ -321,7 +386,9 @@ def walk(
     resuming in the cell beyond the tile boundary it leaves through. Cells are picked by the
     direction of travel, so a ray on a boundary is in the cell it enters and never stalls. The
     walk is over at its end, when the ray heads up above ``top`` (the terrain's highest point),
-    when it leaves the grid, or where it meets the surface; it stands in the cell where it ended.
+    when it leaves the grid, or where it meets the surface (or, if ``canopy.on``, returns from
+    the canopy: ``tile_max`` and ``top`` must then cover the canopy tops); it stands in the cell
+    where it ended.
     """
     H = heights.shape[1]
     W = heights.shape[2]
@@ -340,7 +407,7 @@ def walk(
                 continue
             w.open_ti = ti
             w.open_tj = tj
-        w = cross_cell(w, line, corner_heights(heights, b, w.i, w.j), z, z0, dz, s_end)
+        w = cross_cell(w, line, corner_heights(heights, b, w.i, w.j), z, z0, dz, s_end, canopy, b)
     return w
 
 
@@ -404,10 +471,12 @@ def cast_rays(
     reach: float,
     seed: int,
     augment: int,
+    canopy: Canopy,
     points: wp.array2d(dtype=wp.vec3),
 ):
     """One thread per (scan, ray): every ray of every scan in the batch in one launch, each
-    walked on its own (``walk`` with ``s`` = range in metres).
+    walked on its own (``walk`` with ``s`` = range in metres), against the clutter ``canopy``
+    too if it is ``on`` (its draws seeded by ``(seed, b, r)``).
 
     Rays stop where they leave the square ``+-reach`` metres around the sensor (``reach <= 0``:
     the whole heightfield), so a caller that only bins points into a map casts no further.
@@ -418,7 +487,11 @@ def cast_rays(
     d = directions[r]
     line = grid_line(0.5 * float(H - 1), 0.5 * float(W - 1), d[0] / cell, d[1] / cell)
     t_end = wp.min(max_range, box_exit(line, reach_box(H, W, cell, reach)))
-    w = walk(walk_start(line), line, heights, tile_max, b, tile, terrain_max[b], sensor_z[b], d[2], t_end)
+    ray_canopy = canopy
+    if canopy.on != 0:
+        ray_canopy.key = wp.randi(stream_state(seed, b, STREAM_CANOPY, r))
+        ray_canopy.metres = 1.0
+    w = walk(walk_start(line), line, heights, tile_max, b, tile, terrain_max[b], sensor_z[b], d[2], t_end, ray_canopy)
     write_return(points, b, r, d, w.hit, min_range, max_range, range_noise_std, dropout, seed, augment)
 
 
@@ -451,7 +524,7 @@ def cast_columns(
     azimuth (``walk`` with ``s`` = horizontal distance in metres) serves every ring: the
     lowest ring not yet hit is tested cell by cell; when it is over, the next ring goes on from
     the same cell. A tile (or cell) the lowest ring passes above is passed by every higher ring
-    too. Ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
+    too (no clutter here: see the module's docstring). Ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
     Needs every ray off the vertical (``cos(e) > 0``) and rays ordered ring-major, lowest ring
     first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding. Thread
     ``c`` walks column ``first_column + c * column_step``, so processes can share a scan's columns.
@@ -467,12 +540,14 @@ def cast_columns(
     s_box = box_exit(line, reach_box(H, W, cell, reach))
     z0 = sensor_z[b]
     top = terrain_max[b]
+    no_canopy = Canopy()
+    no_canopy.on = 0
     w = walk_start(line)
     for k in range(rings):
         r = k * columns + c
         d = directions[r]
         h = wp.sqrt(d[0] * d[0] + d[1] * d[1])
-        w = walk(resumed(w), line, heights, tile_max, b, tile, top, z0, d[2] / h, wp.min(s_box, max_range * h))
+        w = walk(resumed(w), line, heights, tile_max, b, tile, top, z0, d[2] / h, wp.min(s_box, max_range * h), no_canopy)
         t = NO_HIT
         if w.hit != NO_HIT:
             t = w.hit / h

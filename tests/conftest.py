@@ -7,11 +7,16 @@ pytest puts this folder on ``sys.path``.
 import os
 
 os.environ.setdefault("WARP_TERRAIN_VERBOSE", "")
+# Every test runs on the CPU unless it asks for CUDA by name (and is marked ``gpu``): calls that
+# leave ``device=None`` would otherwise pick CUDA on a GPU machine and then call ``.numpy()``.
+os.environ["WARP_TERRAIN_DEVICE"] = "cpu"
 
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+import torch  # noqa: E402
+import warp as wp  # noqa: E402
 
 import warp_terrain  # noqa: E402, F401  (sets Warp's log level before any kernel loads)
 from warp_terrain.compose import compose_run  # noqa: E402
@@ -49,6 +54,17 @@ def tiny_sim(noise: float = 0.0) -> SimConfig:
     sim.terrain.margin = 0.5
     sim.data.noise = noise
     return sim
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``gpu`` need CUDA: skipped on a machine without it."""
+    wp.init()
+    if wp.is_cuda_available() and torch.cuda.is_available():
+        return
+    skip = pytest.mark.skip(reason="needs a CUDA device (marked gpu)")
+    for item in items:
+        if "gpu" in item.keywords:
+            item.add_marker(skip)
 
 
 @pytest.fixture

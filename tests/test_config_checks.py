@@ -50,6 +50,28 @@ INVALID = {
     "terrain.dem.detrend": "sometimes",
     "terrain.dem.tries": 0,
     "terrain.dem.assume_metres": "sometimes",
+    "terrain.clutter.enabled": "sometimes",
+    "terrain.clutter.bushes_min": -1,
+    "terrain.clutter.bushes_max": -1,
+    "terrain.clutter.bush_radius_min": 0.0,
+    "terrain.clutter.bush_radius_max": 0.1,  # below bush_radius_min
+    "terrain.clutter.bush_height_min": -0.3,
+    "terrain.clutter.bush_height_max": 0.1,  # below bush_height_min
+    "terrain.clutter.bush_density": 1.5,
+    "terrain.clutter.trees_min": -1,
+    "terrain.clutter.trees_max": -1,
+    "terrain.clutter.crown_radius_min": 0.0,
+    "terrain.clutter.crown_radius_max": 1.0,  # below crown_radius_min
+    "terrain.clutter.crown_lift_min": -2.0,
+    "terrain.clutter.crown_lift_max": 1.0,  # below crown_lift_min
+    "terrain.clutter.crown_depth_min": math.inf,
+    "terrain.clutter.crown_depth_max": 1.0,  # below crown_depth_min
+    "terrain.clutter.crown_density": -0.1,
+    "terrain.clutter.grass_cover": 1.5,
+    "terrain.clutter.grass_patch": 0.0,
+    "terrain.clutter.grass_height_min": 0.0,
+    "terrain.clutter.grass_height_max": 0.05,  # below grass_height_min
+    "terrain.clutter.grass_density": math.nan,
     **{f"terrain.{kind}.{k}": v for kind in ("cylinders", "boxes", "rocks", "pits", "ditches") for k, v in OBSTACLE_INVALID.items()},
     "lidar.name": "",
     "lidar.elevations_deg": [],

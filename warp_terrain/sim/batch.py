@@ -15,8 +15,10 @@ import warp as wp
 from ..core.checks import check_finite, require
 from ..core.geometry import MAP_CELL, MAP_SIZE, MapGeometry
 from ..core.structs import build
+from ..kernels import clutter as clutter_kernels
 from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
+from .clutter import CanopyLayer, make_canopy
 from .dem import check_fit, load_dems
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig, lidar_preset
@@ -95,6 +97,9 @@ class Batch:
     - ``scan_max``: ``(B, 1, S, S)`` highest point per cell (``fill`` where none)
     - ``heights``: ``(B, H, W)`` the simulated terrains (world heights, terrain cell spacing)
     - ``sensor_z``: ``(B,)`` each sensor's world height
+    - ``target_visible``: ``(B, 1, S, S)`` with clutter on (``terrain.clutter``, else None):
+      the highest surface the LIDAR could see from above (ground or canopy top) averaged over
+      each cell like ``target``, which stays the bare ground
     """
 
     scan: torch.Tensor
@@ -104,10 +109,13 @@ class Batch:
     scan_max: torch.Tensor
     heights: torch.Tensor
     sensor_z: torch.Tensor
+    target_visible: torch.Tensor | None = None
     warp_arrays: dict = field(default_factory=dict, repr=False)
 
     def to(self, device) -> Batch:
         moved = {k: getattr(self, k).to(device) for k in ("scan", "mask", "target", "points", "scan_max", "heights", "sensor_z")}
+        if self.target_visible is not None:
+            moved["target_visible"] = self.target_visible.to(device)
         return Batch(**moved)
 
 
@@ -150,16 +158,30 @@ def make_terrains(batch: int, sim: SimConfig, seed: int, device: str, amplitude=
     )
 
 
-def scan_terrains(heights: wp.array, sim: SimConfig, seed: int, device: str) -> tuple[wp.array, wp.array]:
-    """Stage 2: the LIDAR scans ``(points, sensor_z)``; rays stop at the map's edge if ``clip_rays``."""
+def make_clutter(heights: wp.array, sim: SimConfig, seed: int, device: str) -> CanopyLayer | None:
+    """Stage 1b: the clutter layer over the terrains (``terrain.clutter``), placed like the
+    obstacles; None when clutter is off (or none of it can be seen)."""
+    data, terrain = sim.data, sim.terrain
+    if not terrain.clutter.active:
+        return None
+    region = terrain.obstacle_region or 0.5 * data.map_size * data.map_cell
+    return make_canopy(heights, terrain.clutter, terrain.cell, region, terrain.keep_out, seed, device)
+
+
+def scan_terrains(heights: wp.array, sim: SimConfig, seed: int, device: str, canopy: CanopyLayer | None = None) -> tuple[wp.array, wp.array]:
+    """Stage 2: the LIDAR scans ``(points, sensor_z)``, against the clutter ``canopy`` too if
+    given; rays stop at the map's edge if ``clip_rays``."""
     data = sim.data
     reach = 0.5 * data.map_size * data.map_cell + sim.terrain.cell if data.clip_rays else 0.0
-    return trace(heights, sim.terrain.cell, sim.lidar, seed, device, augment=data.augment, reach=reach)
+    return trace(heights, sim.terrain.cell, sim.lidar, seed, device, augment=data.augment, reach=reach, canopy=canopy)
 
 
-def make_maps(heights: wp.array, points: wp.array, sensor_z: wp.array, sim: SimConfig, seed: int, device: str) -> dict[str, wp.array]:
+def make_maps(
+    heights: wp.array, points: wp.array, sensor_z: wp.array, sim: SimConfig, seed: int, device: str, canopy: CanopyLayer | None = None
+) -> dict[str, wp.array]:
     """Stage 3: scan image, mask and max per cell from the points; the ground-truth map from the
-    terrain; image noise on observed cells if configured."""
+    terrain (and, with a clutter ``canopy``, ``target_visible``: ground or canopy top, whichever
+    is higher); image noise on observed cells if configured."""
     data, terrain = sim.data, sim.terrain
     batch = heights.shape[0]
     grid = (batch, data.map_size, data.map_size)
@@ -174,11 +196,21 @@ def make_maps(heights: wp.array, points: wp.array, sensor_z: wp.array, sim: SimC
         outputs=[target, target_min, target_max],
         device=device,
     )
+    maps = dict(scan=scan, mask=mask, target=target, scan_max=scan_max)
+    if canopy is not None:
+        maps["target_visible"] = wp.empty_like(scan)
+        wp.launch(
+            clutter_kernels.cell_mean_visible,
+            dim=grid,
+            inputs=[heights, canopy.top, canopy.density, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
+            outputs=[maps["target_visible"]],
+            device=device,
+        )
     if data.noise > 0:
         height_range = wp.empty(batch, dtype=float, device=device)
         wp.launch(projection_kernels.height_range, dim=batch, inputs=[target_min, target_max], outputs=[height_range], device=device)
         wp.launch(projection_kernels.add_image_noise, dim=grid, inputs=[seed, float(data.noise), height_range, mask], outputs=[scan], device=device)
-    return dict(scan=scan, mask=mask, target=target, scan_max=scan_max)
+    return maps
 
 
 def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=None) -> Batch:
@@ -212,8 +244,9 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
             heights = to_warp(heights, wp.float32, device)
     else:
         heights = make_terrains(batch, sim, seed, device, amplitude=amplitude, feature_size=feature_size)
-    points, sensor_z = scan_terrains(heights, sim, seed, device)
-    arrays = make_maps(heights, points, sensor_z, sim, seed, device)
+    canopy = make_clutter(heights, sim, seed, device)
+    points, sensor_z = scan_terrains(heights, sim, seed, device, canopy)
+    arrays = make_maps(heights, points, sensor_z, sim, seed, device, canopy)
     arrays.update(points=points, heights=heights, sensor_z=sensor_z)
     tensors = {k: wp.to_torch(v) for k, v in arrays.items()}
     tensors["points"] = tensors["points"].view(batch, -1, 3)

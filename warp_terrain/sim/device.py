@@ -1,20 +1,30 @@
 """Device selection and the Warp <-> torch hand-off.
 
-``device`` is ``"cpu"``, ``"cuda"`` (or ``"cuda:N"``) or ``None`` (CUDA when available, else CPU).
+``device`` is ``"cpu"``, ``"cuda"`` (or ``"cuda:N"``) or ``None``: the device named by the
+environment variable ``WARP_TERRAIN_DEVICE`` if set, else CUDA when available, else CPU (the test
+suite sets ``WARP_TERRAIN_DEVICE=cpu``, so it runs the same on a GPU machine; tests marked
+``gpu`` ask for CUDA by name).
 Warp arrays are handed to torch with ``wp.to_torch`` and taken from torch with
 ``wp.from_torch``: both share memory, nothing is copied.
 """
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import torch
 import warp as wp
+
+#: The environment variable that names the default device (``cpu``, ``cuda``, ``cuda:N``).
+DEVICE_ENV = "WARP_TERRAIN_DEVICE"
 
 
 def resolve_device(device: str | torch.device | None = None) -> str:
     """The Warp device name (``"cpu"`` or ``"cuda:N"``) for a user's ``device`` argument."""
     wp.init()
+    if device is None:
+        device = os.environ.get(DEVICE_ENV) or None
     if device is None:
         return "cuda:0" if wp.is_cuda_available() and torch.cuda.is_available() else "cpu"
     name = str(device)

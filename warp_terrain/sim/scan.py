@@ -8,11 +8,13 @@ import numpy as np
 import torch
 import warp as wp
 
+from ..core.checks import check_finite, require
+from ..kernels import clutter as clutter_kernels
 from ..kernels import heightfield as heightfield_kernels
 from ..kernels import raycast as raycast_kernels
+from .clutter import CanopyLayer, no_canopy
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig
-from ..core.checks import check_finite, require
 
 TILE = 8  # cells per side of the max-height tiles that let rays skip empty space
 VERTICAL_DEG = 89.9  # rings steeper than this are cast one ray at a time (no horizontal walk)
@@ -47,6 +49,8 @@ def trace(
     reach: float = 0.0,
     columns: range | None = None,
     out: wp.array | None = None,
+    canopy: CanopyLayer | None = None,
+    per_ray: bool = False,
 ) -> tuple[wp.array, wp.array]:
     """Cast every ray of ``lidar`` over every heightfield in one launch.
 
@@ -54,6 +58,10 @@ def trace(
     ``columns`` (a ``range`` of azimuth columns) casts only those columns (every ring), writing their rays
     into ``out`` (a ``(batch, rays)`` vec3 array; other rays are left as they are): how
     ``sim/parallel.py`` splits one scan across processes.
+    ``canopy`` (``sim/clutter.py``) adds the clutter layer above the ground; the rays are then
+    walked one by one (``cast_rays``: the column walk's invariant does not hold under an
+    overhanging or porous layer), so ``columns`` must be the whole scan. ``per_ray`` walks
+    every ray on its own without clutter too.
 
     Returns ``(points, sensor_z)``: ``(batch, rays)`` vec3 hits in each sensor frame (NaN where
     no return) and each sensor's world height.
@@ -66,12 +74,15 @@ def trace(
     sensor_z = wp.empty(batch, dtype=float, device=device)
     points = out if out is not None else wp.empty((batch, directions.shape[0]), dtype=wp.vec3, device=device)
     rings = lidar.channels
-    by_column = columns_walkable(lidar)
+    by_column = columns_walkable(lidar) and canopy is None and not per_ray
     total = directions.shape[0] // rings
     columns = columns if columns is not None else range(total)
     require(isinstance(columns, range) and len(columns) > 0 and columns.step > 0 and 0 <= columns.start and columns[-1] < total
             and (by_column or len(columns) == total), "columns", columns, f"must be a non-empty range within [0, {total}) of a scan with no vertical ring")
     wp.launch(heightfield_kernels.tile_max_heights, dim=tiles, inputs=[heights, TILE], outputs=[tile_max, terrain_max], device=device)
+    if canopy is not None:
+        require(tuple(canopy.top.shape) == (batch, H - 1, W - 1), "canopy", f"shape {tuple(canopy.top.shape)}", f"must be one value per cell: {(batch, H - 1, W - 1)}")
+        wp.launch(clutter_kernels.raise_tiles, dim=canopy.top.shape, inputs=[canopy.top, canopy.density, TILE], outputs=[tile_max, terrain_max], device=device)
     wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
     wp.launch(
         raycast_kernels.cast_columns if by_column else raycast_kernels.cast_rays,
@@ -92,6 +103,7 @@ def trace(
             float(reach),
             int(seed),
             int(bool(augment)),
+            *([] if by_column else [canopy.struct() if canopy is not None else no_canopy(device)]),
         ],
         outputs=[points],
         device=device,

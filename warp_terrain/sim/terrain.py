@@ -12,6 +12,7 @@ import warp as wp
 from ..core.checks import check_finite, require
 from ..kernels import noise as noise_kernels
 from ..kernels import obstacles as obstacle_kernels
+from .clutter import ClutterConfig
 from .dem import DemConfig, dem_windows, load_dems
 from .device import resolve_device
 
@@ -89,6 +90,7 @@ class TerrainConfig:
     pits: ObstacleConfig = field(default_factory=ObstacleConfig)
     ditches: ObstacleConfig = field(default_factory=ObstacleConfig)
     dem: DemConfig = field(default_factory=DemConfig)
+    clutter: ClutterConfig = field(default_factory=ClutterConfig)  # bushes, grass, tree crowns (sim/clutter.py)
 
     def validate(self, files: bool = True) -> None:
         """Check every key; with ``source="dem"`` and ``files``, also that each DEM file loads
@@ -110,6 +112,7 @@ class TerrainConfig:
         for name in OBSTACLE_KINDS:
             getattr(self, name).validate(name)
         self.dem.validate("dem", load=files and self.source == "dem")
+        self.clutter.validate("clutter")
 
     def has_obstacles(self) -> bool:
         return any(getattr(self, name).count_max > 0 for name in OBSTACLE_KINDS)

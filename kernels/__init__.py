@@ -7,6 +7,7 @@ The Python-side launches live in ``warp_terrain.sim``. One idea per file:
 - ``heightfield``  the terrain surface (two triangles per cell) and its max-height tiles
 - ``noise``        fBm Perlin heightfields on ``wp.noise``
 - ``obstacles``    sampling and stamping cylinders, boxes, rocks, pits and ditches
+- ``clutter``      bushes, grass and tree crowns: the canopy layer above the ground
 - ``raycast``      casting LIDAR rays against heightfields (where the rays are cast)
 - ``projection``   binning points into elevation maps, image noise
 - ``ground_truth`` the cell-averaged true elevation map

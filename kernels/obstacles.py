@@ -1,7 +1,9 @@
 """Obstacles stamped into heightfields: cylinders, boxes and rocks stand up; pits and ditches cut in.
 
 Obstacles are sampled on the device (one thread per obstacle slot) and stamped by one thread per
-heightfield vertex, so a whole batch takes two launches and never leaves the device.
+heightfield vertex, so a whole batch takes two launches and never leaves the device. There is
+no fixed limit on the count: each kind gets ``count_max`` slots per sample (dozens per map are
+fine); every vertex tests every slot, so stamping time grows with the total.
 
 Shapes (footprint in the x-y plane, centre ``center``, half extents ``half``, heading ``yaw``):
 
@@ -92,7 +94,7 @@ def sample_obstacles(
     if spec.kind == BOX or spec.kind == DITCH:
         half = wp.vec2(0.5 * length, 0.5 * width)
     reach = wp.length(half)
-    for attempt in range(32):
+    for _attempt in range(32):
         cx = wp.randf(state, -region, region)
         cy = wp.randf(state, -region, region)
         center = wp.vec2(cx, cy)

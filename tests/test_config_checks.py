@@ -72,6 +72,35 @@ INVALID = {
     "terrain.clutter.grass_height_min": 0.0,
     "terrain.clutter.grass_height_max": 0.05,  # below grass_height_min
     "terrain.clutter.grass_density": math.nan,
+    "terrain.tilt.enabled": "sometimes",
+    "terrain.tilt.slope_min_deg": -1.0,
+    "terrain.tilt.slope_max_deg": 70.0,
+    "terrain.relief.enabled": "sometimes",
+    "terrain.relief.octaves": 0,
+    "terrain.relief.wavelength_min": 0.0,
+    "terrain.relief.wavelength_max": 10.0,  # below wavelength_min
+    "terrain.relief.amplitude_min": -1.0,
+    "terrain.relief.amplitude_max": math.nan,
+    "terrain.landforms.depressions_min": -1,
+    "terrain.landforms.depressions_max": -1,
+    "terrain.landforms.depression_radius_min": 0.0,
+    "terrain.landforms.depression_radius_max": 1.0,  # below depression_radius_min
+    "terrain.landforms.depression_depth_min": -0.5,
+    "terrain.landforms.depression_depth_max": 0.1,  # below depression_depth_min
+    "terrain.landforms.gullies_min": -1,
+    "terrain.landforms.gullies_max": -1,
+    "terrain.landforms.gully_width_min": 0.0,
+    "terrain.landforms.gully_width_max": 1.0,  # below gully_width_min
+    "terrain.landforms.gully_depth_min": math.inf,
+    "terrain.landforms.gully_depth_max": 0.1,  # below gully_depth_min
+    "terrain.landforms.gully_meander_max": -1.0,
+    "terrain.landforms.gully_wavelength_min": 0.0,
+    "terrain.landforms.gully_wavelength_max": 5.0,  # below gully_wavelength_min
+    "terrain.landforms.terrace_probability": 1.5,
+    "terrain.landforms.terrace_rise_min": 0.0,
+    "terrain.landforms.terrace_rise_max": 0.1,  # below terrace_rise_min
+    "terrain.landforms.terrace_tread_min": -0.1,
+    "terrain.landforms.terrace_tread_max": 0.95,
     **{f"terrain.{kind}.{k}": v for kind in ("cylinders", "boxes", "rocks", "pits", "ditches") for k, v in OBSTACLE_INVALID.items()},
     "lidar.name": "",
     "lidar.elevations_deg": [],

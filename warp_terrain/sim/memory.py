@@ -1,7 +1,10 @@
 """How much memory a batch needs, checked before any of it is allocated.
 
 ``batch_bytes`` adds up the arrays ``generate_batch`` allocates (terrains, max-height tiles,
-ray hits, the binning accumulators, the maps and the ground truth); ``check_batch_fits``
+ray hits, the binning accumulators, the maps and the ground truth) plus the terrain's scratch
+(obstacle slots and landform draws, ``sim/terrain.py::scratch_bytes``: dozens of obstacles per
+map are a few kB per sample, freed before the scan allocates, so they count only where they
+exceed what the later stages take); ``check_batch_fits``
 compares that with the device's free memory and refuses a batch that would not fit, with the
 estimate in the message, instead of letting the machine swap or the allocator fail midway.
 """
@@ -17,17 +20,18 @@ from .scan import TILE
 HEADROOM = 0.8  # a batch may use at most this fraction of the free memory
 
 
-def batch_bytes(batch: int, terrain_size: int, rays: int, map_size: int) -> int:
-    """Bytes ``generate_batch`` allocates for ``batch`` pairs."""
+def batch_bytes(batch: int, terrain_size: int, rays: int, map_size: int, scratch: int = 0) -> int:
+    """Bytes ``generate_batch`` allocates for ``batch`` pairs; ``scratch``: the terrain's
+    transient bytes per sample (freed before the scan allocates, so the peak is the larger)."""
     tiles = ((terrain_size - 2) // TILE + 1) ** 2
-    per_sample = (
-        4 * terrain_size**2  # heights
-        + 4 * tiles  # max-height tiles
+    later = (
+        4 * tiles  # max-height tiles
         + 12 * rays  # hits (vec3)
         + (8 + 4 + 4) * map_size**2  # binning: float64 sum, count, max
         + 4 * 4 * map_size**2  # scan, scan_max, mask, target
         + 4 * 8  # sensor height, terrain max, target min/max, noise range
     )
+    per_sample = 4 * terrain_size**2 + max(later, int(scratch))  # heights, then the larger stage
     return batch * per_sample
 
 
@@ -56,12 +60,12 @@ def _gib(n: float) -> str:
 _FITTED: set[tuple] = set()  # shapes already found to fit: the stream asks every step
 
 
-def check_batch_fits(batch: int, terrain_size: int, rays: int, map_size: int, device: str) -> int:
+def check_batch_fits(batch: int, terrain_size: int, rays: int, map_size: int, device: str, scratch: int = 0) -> int:
     """Raise ValueError with the estimate if the batch would not fit ``device``; return the estimate.
 
     A shape that fitted once is not asked again (no query per training step)."""
-    need = batch_bytes(batch, terrain_size, rays, map_size)
-    key = (batch, terrain_size, rays, map_size, str(device))
+    need = batch_bytes(batch, terrain_size, rays, map_size, scratch)
+    key = (batch, terrain_size, rays, map_size, int(scratch), str(device))
     if key in _FITTED:
         return need
     free = available_bytes(device)

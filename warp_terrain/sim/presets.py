@@ -8,7 +8,10 @@ negative obstacles (holes and ditches) the LIDAR cannot see into. Sizes are ours
 gives none): relief of +-2 m over 20 m features at true scale on a 30 m map, obstacles of
 vehicle-relevant size. ``dem`` takes real ground from elevation rasters the user names
 (``terrain=dem terrain.dem.files=[a.tif]``, ``sim/dem.py``); it needs those files, so it is not
-one of the settings ``terrain_preset_names`` (and ``all``) run as they are.
+one of the settings ``terrain_preset_names`` (and ``all``) run as they are. ``wide`` is a wider
+synthetic world covering what real 30 m windows of ground do (tilts of 0-35 degrees, relief of
+up to ~15 m across the map, depressions, gullies and terraces now and then, up to 40 obstacles
+of a kind); it is not one of the paper's settings, so ``all`` leaves it out too.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import copy
 
 from .batch import DataConfig, SimConfig
 from .dem import DemConfig
+from .landforms import LandformConfig, ReliefConfig, TiltConfig
 from .terrain import ObstacleConfig, TerrainConfig
 
 TERRAIN_PRESETS: dict[str, TerrainConfig] = {
@@ -36,15 +40,38 @@ TERRAIN_PRESETS: dict[str, TerrainConfig] = {
         ditches=ObstacleConfig(count_min=1, count_max=3, width_min=0.8, width_max=2.0, length_min=4.0, length_max=12.0,
                                height_min=0.5, height_max=1.5),
     ),
+    # a wider world: tilt, low-frequency relief, landforms and dense obstacles of every kind
+    "wide": TerrainConfig(
+        name="wide", octaves=5, feature_size=20.0, amplitude=1.0,
+        tilt=TiltConfig(enabled=True, slope_min_deg=0.0, slope_max_deg=35.0),
+        relief=ReliefConfig(enabled=True, octaves=2, wavelength_min=60.0, wavelength_max=400.0, amplitude_min=0.0, amplitude_max=7.0),
+        landforms=LandformConfig(
+            depressions_min=0, depressions_max=2, depression_radius_min=4.0, depression_radius_max=15.0,
+            depression_depth_min=0.3, depression_depth_max=2.0,
+            gullies_min=0, gullies_max=1, gully_width_min=4.0, gully_width_max=12.0, gully_depth_min=0.5, gully_depth_max=2.0,
+            gully_meander_max=3.0, gully_wavelength_min=15.0, gully_wavelength_max=50.0,
+            terrace_probability=0.25, terrace_rise_min=0.5, terrace_rise_max=2.0, terrace_tread_min=0.2, terrace_tread_max=0.5,
+        ),
+        cylinders=ObstacleConfig(count_min=0, count_max=40, width_min=0.2, width_max=1.5, height_min=0.5, height_max=3.0),
+        boxes=ObstacleConfig(count_min=0, count_max=40, width_min=0.5, width_max=3.0, length_min=1.0, length_max=6.0,
+                             height_min=0.3, height_max=2.5),
+        rocks=ObstacleConfig(count_min=0, count_max=40, width_min=0.3, width_max=2.5, height_min=0.2, height_max=1.5),
+        pits=ObstacleConfig(count_min=0, count_max=40, width_min=0.5, width_max=3.0, height_min=0.3, height_max=1.5),
+        ditches=ObstacleConfig(count_min=0, count_max=40, width_min=0.5, width_max=2.0, length_min=3.0, length_max=12.0,
+                               height_min=0.3, height_max=1.5),
+    ),
     # real ground: true-scale windows of elevation rasters, random heading and mirror (give the files)
     "dem": TerrainConfig(name="dem", source="dem", dem=DemConfig()),
 }
 
 
+BEYOND_THE_PAPER = ("wide",)  # presets ``all`` leaves out
+
+
 def terrain_preset_names() -> list[str]:
-    """The names of the presets that run as they are (what ``all`` means), sorted: every
-    preset but those that need the user's files (``dem``)."""
-    return sorted(name for name, terrain in TERRAIN_PRESETS.items() if terrain.source == "fbm")
+    """The names of the presets that run as they are (what ``all`` means), sorted: the paper's
+    settings, i.e. every preset but those that need the user's files (``dem``) and ``wide``."""
+    return sorted(name for name, terrain in TERRAIN_PRESETS.items() if terrain.source == "fbm" and name not in BEYOND_THE_PAPER)
 
 
 def terrain_preset(name: str) -> TerrainConfig:

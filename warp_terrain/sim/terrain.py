@@ -15,6 +15,7 @@ from ..kernels import obstacles as obstacle_kernels
 from .clutter import ClutterConfig
 from .dem import DemConfig, dem_windows, load_dems
 from .device import resolve_device
+from .landforms import LandformConfig, ReliefConfig, TiltConfig, add_landforms, landform_scratch_bytes
 
 
 @dataclass
@@ -70,7 +71,9 @@ class TerrainConfig:
     Obstacles are placed in the square ``+-obstacle_region`` metres around the sensor
     (0: the map's extent), keeping ``keep_out`` metres clear around the sensor (the vehicle).
     With ``source="dem"`` the fBm keys are not used (still checked) and the obstacles stand on
-    the real ground.
+    the real ground. ``tilt``, ``relief`` and ``landforms`` (``sim/landforms.py``, off by
+    default) add a planar tilt, low-frequency relief, terraces, depressions and gullies to the
+    fBm (not to DEM windows), before the obstacles.
     """
 
     name: str = "octave5"
@@ -90,6 +93,9 @@ class TerrainConfig:
     pits: ObstacleConfig = field(default_factory=ObstacleConfig)
     ditches: ObstacleConfig = field(default_factory=ObstacleConfig)
     dem: DemConfig = field(default_factory=DemConfig)
+    tilt: TiltConfig = field(default_factory=TiltConfig)  # planar tilt (sim/landforms.py)
+    relief: ReliefConfig = field(default_factory=ReliefConfig)  # low-frequency relief
+    landforms: LandformConfig = field(default_factory=LandformConfig)  # depressions, gullies, terraces
     clutter: ClutterConfig = field(default_factory=ClutterConfig)  # bushes, grass, tree crowns (sim/clutter.py)
 
     def validate(self, files: bool = True) -> None:
@@ -112,6 +118,9 @@ class TerrainConfig:
         for name in OBSTACLE_KINDS:
             getattr(self, name).validate(name)
         self.dem.validate("dem", load=files and self.source == "dem")
+        self.tilt.validate("tilt")
+        self.relief.validate("relief")
+        self.landforms.validate("landforms")
         self.clutter.validate("clutter")
 
     def has_obstacles(self) -> bool:
@@ -144,6 +153,13 @@ def _specs(cfg: TerrainConfig, device: str):
         wp.array(np.array(slot_spec, dtype=np.int32), dtype=int, device=device),
         wp.array(np.array(slot_rank, dtype=np.int32), dtype=int, device=device),
     )
+
+
+def scratch_bytes(cfg: TerrainConfig) -> int:
+    """Transient bytes per sample ``make_heightfields`` allocates besides the heights: the
+    obstacle slots and the landform draws (``sim/memory.py`` counts them)."""
+    slots = sum(getattr(cfg, name).count_max for name in OBSTACLE_KINDS)
+    return slots * wp.types.type_size_in_bytes(obstacle_kernels.Obstacle) + landform_scratch_bytes(cfg.relief, cfg.landforms)
 
 
 def per_sample(value, batch: int, device: str, name: str) -> wp.array:
@@ -206,8 +222,8 @@ def make_heightfields(
     first: int = 0,
     out: wp.array | None = None,
 ) -> wp.array:
-    """``(batch, size, size)`` Warp heightfields: the relief (fBm, or DEM windows with
-    ``cfg.source="dem"``), then obstacles stamped in.
+    """``(batch, size, size)`` Warp heightfields: the relief (fBm with the configured
+    landforms, or DEM windows with ``cfg.source="dem"``), then obstacles stamped in.
 
     ``feature_size`` / ``amplitude`` override the config per sample (domain randomisation; fBm
     only). Samples are numbered from ``first`` (sample ``first + b`` is the same terrain in any
@@ -220,6 +236,7 @@ def make_heightfields(
         wp.copy(heights, wp.array(windows, dtype=float, device=device))
     else:
         _fbm_relief(heights, cfg, seed, device, feature_size, amplitude, first)
+        add_landforms(heights, cell, cfg.tilt, cfg.relief, cfg.landforms, seed, device, int(first))
     if cfg.has_obstacles():
         specs, slot_spec, slot_rank = _specs(cfg, device)
         region = obstacle_region if obstacle_region is not None else cfg.obstacle_region

@@ -41,3 +41,25 @@ def test_cuda_batches_equal_cpu_batches():
     same = (cpu.mask == gpu.mask.cpu())
     assert same.float().mean() >= 0.999
     torch.testing.assert_close(gpu.target.cpu(), cpu.target, atol=1e-3, rtol=0)
+
+
+def test_no_cuda_driver_warning_on_a_cpu_machine_unless_verbose(tmp_path):
+    """Warp's native library warns that it found no NVIDIA driver; on a CPU machine that is
+    noise, so it is shown only with WARP_TERRAIN_VERBOSE (everything else it prints still shows)."""
+    import os
+    import subprocess
+    import sys
+
+    import warp as wp
+
+    wp.init()
+    if wp.is_cuda_available():
+        pytest.skip("a CUDA driver is present: there is nothing to hide")
+    code = "import warp_terrain as wt; wt.generate_batch(1, seed=0)"
+    env = {k: v for k, v in os.environ.items() if k != "WARP_TERRAIN_VERBOSE"}
+    quiet = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0, quiet.stderr
+    assert "CUDA driver" not in quiet.stderr
+    loud = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env={**env, "WARP_TERRAIN_VERBOSE": "1"},
+                          capture_output=True, text=True, timeout=300)
+    assert "Could not find or load the NVIDIA CUDA driver" in loud.stderr + loud.stdout

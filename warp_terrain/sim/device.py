@@ -11,6 +11,8 @@ Warp arrays are handed to torch with ``wp.to_torch`` and taken from torch with
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 
 import numpy as np
 import torch
@@ -20,9 +22,40 @@ import warp as wp
 DEVICE_ENV = "WARP_TERRAIN_DEVICE"
 
 
+#: What Warp's native library prints when a machine has no NVIDIA driver: nothing is wrong on a
+#: CPU machine, so it is not shown unless ``WARP_TERRAIN_VERBOSE`` is set.
+NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+_warp_ready = False
+
+
+def init_warp() -> None:
+    """``wp.init()``, without the native library's no-driver warning on a CPU-only machine
+    (everything else it prints still reaches stderr). Idempotent."""
+    global _warp_ready
+    if _warp_ready or os.environ.get("WARP_TERRAIN_VERBOSE"):
+        wp.init()
+        _warp_ready = True
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        caught.seek(0)
+        text = caught.read().decode(errors="replace")
+    _warp_ready = True
+    for line in text.splitlines():
+        if NO_DRIVER not in line:
+            print(line, file=sys.stderr)
+
+
 def resolve_device(device: str | torch.device | None = None) -> str:
     """The Warp device name (``"cpu"`` or ``"cuda:N"``) for a user's ``device`` argument."""
-    wp.init()
+    init_warp()
     if device is None:
         device = os.environ.get(DEVICE_ENV) or None
     if device is None:

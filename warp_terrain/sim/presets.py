@@ -19,6 +19,7 @@ from __future__ import annotations
 import copy
 
 from .batch import DataConfig, SimConfig
+from .clutter import ClutterConfig
 from .dem import DemConfig
 from .landforms import LandformConfig, ReliefConfig, TiltConfig
 from .terrain import ObstacleConfig, TerrainConfig
@@ -40,7 +41,7 @@ TERRAIN_PRESETS: dict[str, TerrainConfig] = {
         ditches=ObstacleConfig(count_min=1, count_max=3, width_min=0.8, width_max=2.0, length_min=4.0, length_max=12.0,
                                height_min=0.5, height_max=1.5),
     ),
-    # a wider world: tilt, low-frequency relief, landforms and dense obstacles of every kind
+    # a wider world: tilt, low-frequency relief, landforms, up to 90 obstacles of every kind, clutter
     "wide": TerrainConfig(
         name="wide", octaves=5, feature_size=20.0, amplitude=1.0,
         tilt=TiltConfig(enabled=True, slope_min_deg=0.0, slope_max_deg=35.0),
@@ -52,13 +53,14 @@ TERRAIN_PRESETS: dict[str, TerrainConfig] = {
             gully_meander_max=3.0, gully_wavelength_min=15.0, gully_wavelength_max=50.0,
             terrace_probability=0.25, terrace_rise_min=0.5, terrace_rise_max=2.0, terrace_tread_min=0.2, terrace_tread_max=0.5,
         ),
-        cylinders=ObstacleConfig(count_min=0, count_max=40, width_min=0.2, width_max=1.5, height_min=0.5, height_max=3.0),
-        boxes=ObstacleConfig(count_min=0, count_max=40, width_min=0.5, width_max=3.0, length_min=1.0, length_max=6.0,
+        cylinders=ObstacleConfig(count_min=0, count_max=30, width_min=0.2, width_max=1.5, height_min=0.5, height_max=3.0),
+        boxes=ObstacleConfig(count_min=0, count_max=12, width_min=0.5, width_max=3.0, length_min=1.0, length_max=6.0,
                              height_min=0.3, height_max=2.5),
-        rocks=ObstacleConfig(count_min=0, count_max=40, width_min=0.3, width_max=2.5, height_min=0.2, height_max=1.5),
-        pits=ObstacleConfig(count_min=0, count_max=40, width_min=0.5, width_max=3.0, height_min=0.3, height_max=1.5),
-        ditches=ObstacleConfig(count_min=0, count_max=40, width_min=0.5, width_max=2.0, length_min=3.0, length_max=12.0,
+        rocks=ObstacleConfig(count_min=0, count_max=30, width_min=0.3, width_max=2.5, height_min=0.2, height_max=1.5),
+        pits=ObstacleConfig(count_min=0, count_max=12, width_min=0.5, width_max=3.0, height_min=0.3, height_max=1.5),
+        ditches=ObstacleConfig(count_min=0, count_max=6, width_min=0.5, width_max=2.0, length_min=3.0, length_max=12.0,
                                height_min=0.3, height_max=1.5),
+        clutter=ClutterConfig(enabled=True),  # bushes, a few tree crowns, grass: returns from above the ground
     ),
     # real ground: true-scale windows of elevation rasters, random heading and mirror (give the files)
     "dem": TerrainConfig(name="dem", source="dem", dem=DemConfig()),

@@ -166,9 +166,10 @@ def _train_py(*args, cwd):
 
 
 def test_train_py_bad_override_fails_fast_with_a_clear_message(tmp_path):
-    bad = _train_py("terrain.octaves=-1", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    bad = _train_py("terrain.octaves=-1", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     assert bad.returncode != 0 and "terrain.octaves=-1" in bad.stderr and "Traceback" not in bad.stderr
-    nope = _train_py("model=nope", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert not (tmp_path / "run").exists()  # a refused run leaves no folder
+    nope = _train_py("model=nope", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
     assert nope.returncode != 0 and "nope" in nope.stderr
 
 

@@ -7,7 +7,9 @@ source checkout and from an installed wheel, in any folder.
 
 from __future__ import annotations
 
+import shutil
 import sys
+from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
@@ -20,6 +22,15 @@ from ..training.report import print_summary
 
 register_configs()
 
+#: What Hydra writes into a run folder before the run starts.
+HYDRA_FILES = {".hydra", "train.log", "main.log"}
+
+
+def _remove_if_only_hydra(run_dir: Path) -> None:
+    """Remove a refused run's folder if it holds nothing but what Hydra wrote into it."""
+    if run_dir.is_dir() and {p.name for p in run_dir.iterdir()} <= HYDRA_FILES:
+        shutil.rmtree(run_dir, ignore_errors=True)
+
 
 @hydra.main(version_base="1.3", config_path=CONFIG_PATH, config_name=CONFIG_NAME)
 def main(cfg: DictConfig) -> float:
@@ -27,8 +38,15 @@ def main(cfg: DictConfig) -> float:
         run = to_run_config(cfg)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
+        _remove_if_only_hydra(Path(HydraConfig.get().runtime.output_dir))
         sys.exit(2)
-    summary = train(run, HydraConfig.get().runtime.output_dir, callbacks=[PaperFigures()])
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        summary = train(run, run_dir, callbacks=[PaperFigures()])
+    except ValueError as err:  # refused before any work (memory, device, resume): one line, no folder left
+        print(f"error: {err}", file=sys.stderr)
+        _remove_if_only_hydra(run_dir)
+        sys.exit(2)
     if "val_rmse_unobserved" not in summary:  # a non-main rank under torchrun
         return float("nan")
     print_summary(summary)

@@ -26,7 +26,7 @@ from .memory import check_batch_fits
 from .projection import bin_into_maps, check_map
 from .randomize import RandomizeConfig, randomize
 from .scan import as_heightfields, trace
-from .terrain import TerrainConfig, grid_size, make_heightfields
+from .terrain import TerrainConfig, grid_size, make_heightfields, scratch_bytes
 
 
 @dataclass
@@ -234,7 +234,8 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
         sim, amplitude, feature_size = randomize(sim, batch, seed)
     if heights is not None:
         heights, shape = as_heightfields(heights)
-    check_batch_fits(batch, terrain_size(sim) if heights is None else max(shape[1:]), sim.lidar.num_rays, sim.data.map_size, device)
+    check_batch_fits(batch, terrain_size(sim) if heights is None else max(shape[1:]), sim.lidar.num_rays, sim.data.map_size, device,
+                     scratch_bytes(sim.terrain))
     if heights is not None:
         require(shape[0] == batch, "heights", f"shape {shape}", f"needs batch={batch} terrains")
         reach = 0.5 * (min(shape[1], shape[2]) - 1) * sim.terrain.cell

@@ -35,6 +35,7 @@ from ..models.uncertainty import standard_deviation
 from ..sim.batch import SimConfig, terrain_size
 from ..sim.device import resolve_device
 from ..sim.memory import check_batch_fits
+from ..sim.terrain import scratch_bytes
 from .checkpoint import BEST, LATEST, remove_stale_temporaries, resolve_resume, rng_state, set_rng_state
 from .config import RunConfig
 from .distributed import NullWriter, Ranks, close_ranks, init_ranks
@@ -110,17 +111,26 @@ class TrainingRun:
 
 
 def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
-    """Everything before the first step, in this order: the run folders, the ranks and device,
-    a check that a batch fits the device, CPU threads, the torch and numpy seeds, the model (its
+    """Everything before the first step, in this order: the device and ranks, a check that a batch
+    fits the device, a check that ``train.resume`` has something to resume (each refusal names
+    its key and comes before any folder is made), the run folders, CPU threads, the torch and numpy seeds, the model (its
     random initial weights), the resumed checkpoint's weights, step, best score and RNG states
     (``train.resume``), ``run_config.yaml``, the validation set and the TensorBoard writer."""
     tc = cfg.train
     run_dir = Path(run_dir)
+    try:  # errors name the key the user sets
+        device = resolve_device(None if tc.device == "auto" else tc.device)
+    except ValueError as err:
+        raise ValueError(f"train.device={tc.device}: {str(err).split(': ', 1)[-1]}") from None
+    ranks, device = init_ranks(device)
+    sim = cfg.sim()
+    try:
+        check_batch_fits(tc.batch_size, terrain_size(sim), sim.lidar.num_rays, sim.data.map_size, device, scratch_bytes(sim.terrain))
+    except ValueError as err:
+        raise ValueError(f"train.batch_size={tc.batch_size}: {str(err).split(': ', 1)[-1]}") from None
+    resolve_resume(tc.resume, run_dir)  # a resume with nothing to resume fails here, before any folder is made
     for d in (run_dir / "checkpoints", run_dir / "images"):
         d.mkdir(parents=True, exist_ok=True)
-    ranks, device = init_ranks(resolve_device(None if tc.device == "auto" else tc.device))
-    sim = cfg.sim()
-    check_batch_fits(tc.batch_size, terrain_size(sim), sim.lidar.num_rays, sim.data.map_size, device)
     _seed(cfg, device)
 
     model = build_model(cfg.model).to(device)

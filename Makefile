@@ -55,3 +55,17 @@ $(REALDATA_STAMP): $(STAMP) pyproject.toml
 
 real-data: $(REALDATA_STAMP)
 	$(PY) tools/real_data.py $(ARGS)
+
+# Mutation testing of the core modules (mutmut >= 3, configured in pyproject.toml [tool.mutmut]);
+# not part of `make test`. Mutants go to mutants/ (git-ignored). ARGS: mutant name patterns,
+# e.g. ARGS='"warp_terrain.evaluation.metrics*"' for one module.
+.PHONY: mutation
+MUTATION_STAMP := $(VENV)/.installed-mutation
+
+$(MUTATION_STAMP): $(STAMP) pyproject.toml
+	$(PIP) install -q -e ".[mutation]"
+	touch $(MUTATION_STAMP)
+
+mutation: $(MUTATION_STAMP)
+	$(VENV)/bin/mutmut run $(ARGS)
+	$(VENV)/bin/mutmut results

@@ -86,6 +86,7 @@ def test_parser_lists_subcommands():
     assert "bench" in help_text and "preview" in help_text
 
 
+@pytest.mark.slow
 def test_bench_loader_compares_worker_processes(capsys):
     assert main(["bench", "--json", "--quick", "--only", "loader"]) == 0
     report = json.loads(capsys.readouterr().out)

@@ -8,6 +8,8 @@ import sys
 import pytest
 from conftest import ROOT, TINY_RUN
 
+pytestmark = pytest.mark.slow  # training processes started (and killed)
+
 
 @pytest.mark.parametrize(
     ("override", "key"),

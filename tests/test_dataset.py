@@ -71,6 +71,7 @@ def test_same_command_writes_the_same_bytes(dataset, tmp_path):
     assert [s["sha256"] for s in again["shards"]] == [s["sha256"] for s in manifest["shards"]]
 
 
+@pytest.mark.slow
 def test_worker_processes_write_the_same_bytes(dataset, tmp_path):
     _, manifest = dataset
     parallel = write_dataset(tmp_path / "parallel", 5, tiny_sim(noise=0.05), seed=7, shard_size=2, device="cpu", workers=2)

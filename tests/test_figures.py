@@ -38,6 +38,7 @@ def test_figures_without_a_checkpoint(tmp_path, capsys):
     assert "--checkpoint" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_figures_with_a_checkpoint(tmp_path, checkpoint):
     out = tmp_path / "figs"
     assert main(["figures", "--out", str(out), "--checkpoint", str(checkpoint), "--dpi", "40", "--device", "cpu"]) == 0

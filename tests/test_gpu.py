@@ -43,6 +43,7 @@ def test_cuda_batches_equal_cpu_batches():
     torch.testing.assert_close(gpu.target.cpu(), cpu.target, atol=1e-3, rtol=0)
 
 
+@pytest.mark.slow
 def test_no_cuda_driver_warning_on_a_cpu_machine_unless_verbose(tmp_path):
     """Warp's native library warns that it found no NVIDIA driver; on a CPU machine that is
     noise, so it is shown only with WARP_TERRAIN_VERBOSE (everything else it prints still shows)."""

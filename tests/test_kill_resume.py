@@ -95,6 +95,8 @@ sys.argv = [os.path.join(root, "train.py"), *args]
 runpy.run_path(sys.argv[0], run_name="__main__")
 '''
 
+pytestmark = pytest.mark.slow  # processes started, killed and restarted
+
 
 def _start(tmp_path: Path, run_dir: Path, progress: Path, *overrides, die_on_write: int = 0) -> subprocess.Popen:
     wrapper = tmp_path / "kill_resume_wrapper.py"

@@ -9,6 +9,7 @@ from warp_terrain.sim.scan import trace
 from warp_terrain.sim.terrain import ObstacleConfig, TerrainConfig, make_heightfields
 
 
+@pytest.mark.slow
 def test_processes_write_the_same_points_as_one_process():
     cfg = TerrainConfig(octaves=4, amplitude=1.5, feature_size=8.0, cell=0.1, keep_out=1.5)
     cfg.boxes = ObstacleConfig(count_min=1, count_max=3)
@@ -25,6 +26,7 @@ def test_processes_write_the_same_points_as_one_process():
     assert np.isfinite(single[..., 0]).mean() > 0.2
 
 
+@pytest.mark.slow
 def test_processes_make_the_same_heightfields_as_one_process():
     cfg = TerrainConfig(octaves=5, feature_size=6.0, cell=0.125)
     cfg.rocks = ObstacleConfig(count_min=1, count_max=3)

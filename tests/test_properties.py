@@ -133,6 +133,7 @@ def as_input(points: np.ndarray, dtype: str, kind: str):
 
 
 # -- project_points -------------------------------------------------------------------------------
+@pytest.mark.slow
 @settings(BASE, max_examples=300)
 @given(clouds(), st.sampled_from(DTYPES), st.sampled_from(["numpy", "torch"]))
 def test_projection_matches_the_numpy_reference(cloud, dtype, kind):

@@ -29,7 +29,7 @@ train: $(STAMP)
 test: lint
 	$(PY) -m pytest -q $(ARGS)
 
-# the suite without the tests marked slow (training runs, kills, the wheel): about a minute
+# the suite without the tests marked slow (training runs, kills, process splits, the wheel): about 2 minutes
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" $(ARGS)
 

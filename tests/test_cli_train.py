@@ -8,7 +8,7 @@ import sys
 import pytest
 from conftest import ROOT, TINY_RUN
 
-pytestmark = pytest.mark.slow  # training processes started (and killed)
+pytestmark = pytest.mark.slow  # a train.py process per case
 
 
 @pytest.mark.parametrize(

@@ -21,6 +21,7 @@ import warp as wp  # noqa: E402
 import warp_terrain  # noqa: E402, F401  (sets Warp's log level before any kernel loads)
 from warp_terrain.compose import compose_run  # noqa: E402
 from warp_terrain.sim import SimConfig, lidar_preset  # noqa: E402
+from warp_terrain.sim.device import init_warp  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,7 +59,7 @@ def tiny_sim(noise: float = 0.0) -> SimConfig:
 
 def pytest_collection_modifyitems(config, items):
     """Tests marked ``gpu`` need CUDA: skipped on a machine without it."""
-    wp.init()
+    init_warp()
     if wp.is_cuda_available() and torch.cuda.is_available():
         return
     skip = pytest.mark.skip(reason="needs a CUDA device (marked gpu)")

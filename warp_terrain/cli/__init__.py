@@ -15,6 +15,7 @@ for a ``ValueError`` raised by the library while checking them).
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from ..core.version import __version__
@@ -64,11 +65,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Options whose value may start with a minus sign (a list of numbers): ``--transform -5,0,...``.
+NUMERIC_LIST_OPTIONS = ("--transform",)
+
+
+def join_numeric_values(argv: list[str]) -> list[str]:
+    """``--transform -5,0,1`` as ``--transform=-5,0,1``: argparse would take ``-5,0,1`` for an option."""
+    out = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in NUMERIC_LIST_OPTIONS and i + 1 < len(argv) and re.fullmatch(r"-[\d.][\d.,eE+-]*", argv[i + 1]):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 2 bad arguments)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "train":
         return run_train(argv[1:])
+    argv = join_numeric_values(argv)
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -58,6 +58,8 @@ def cmd_evaluate(args) -> int:
     if args.markdown is not None and not Path(args.markdown).resolve().parent.is_dir():
         raise ValueError(f"--markdown {args.markdown!r}: the folder does not exist")
     model_info = None
+    if args.checkpoint is not None and args.pretrained:
+        raise ValueError(f"--checkpoint {args.checkpoint!r} and --pretrained name two models: give one")
     if args.checkpoint is not None or args.pretrained:
         predictor = load_predictor(args.checkpoint, device=args.device, tta=args.tta)
         model_info = predictor.info

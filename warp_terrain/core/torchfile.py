@@ -8,6 +8,7 @@ either the previous file or the new one, never half of one; reading never unpick
 from __future__ import annotations
 
 import os
+import pickle
 from pathlib import Path
 
 import torch
@@ -23,6 +24,15 @@ def atomic_save(obj, path: str | os.PathLike) -> None:
         torch.save(obj, f)
 
 
+def read_error(err: BaseException) -> str:
+    """A short reason why ``torch.load(weights_only=True)`` failed: never torch's advice to load
+    the file with ``weights_only=False`` (that would run whatever code the file holds)."""
+    if isinstance(err, pickle.UnpicklingError) or "weights_only" in str(err):
+        return "not a file of plain tensors: it holds objects or code that are never loaded (weights_only=True)"
+    first = (str(err).strip().splitlines() or [""])[0][:200]
+    return f"{type(err).__name__}: {first}" if first else type(err).__name__
+
+
 def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     path = Path(path)
     if not path.is_file():
@@ -30,4 +40,4 @@ def load_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     try:
         return torch.load(path, map_location=map_location, weights_only=True)
     except Exception as err:  # a truncated or foreign file: say which, not a pickle trace
-        raise ValueError(f"checkpoint {str(path)!r} cannot be read ({type(err).__name__}: {err})") from None
+        raise ValueError(f"checkpoint {str(path)!r} cannot be read ({read_error(err)})") from None

@@ -24,6 +24,18 @@ def _need(module: str, extra: str = "io"):
         raise ValueError(f"reading this format needs {module!r}: pip install 'warp-terrain[{extra}]'") from None
 
 
+def _first_line(err: BaseException) -> str:
+    """A parser's message in one line (pydantic, which pypcd4 uses, prints a page per field)."""
+    errors = getattr(err, "errors", None)
+    if callable(errors):  # a pydantic ValidationError: the first bad header field
+        try:
+            first = errors()[0]
+            return f"header field {'.'.join(str(k) for k in first['loc'])}: {first['msg']}"[:200]
+        except Exception:  # noqa: BLE001  (not pydantic after all: fall back to the message)
+            pass
+    return (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+
+
 def read_point_cloud(path: str | Path) -> np.ndarray:
     """``(N, 3)`` float32 points from a file; ValueError naming the file for anything unreadable."""
     path = Path(path)
@@ -48,9 +60,9 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
             las = laspy.read(str(path))
             xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=-1)
     except ValueError as err:
-        raise ValueError(f"{str(path)!r}: cannot read ({err})") from None
+        raise ValueError(f"{str(path)!r}: cannot read ({_first_line(err)})") from None
     except Exception as err:  # a corrupt or foreign file: say which, not a parser trace
-        raise ValueError(f"{str(path)!r}: cannot read as {suffix} ({type(err).__name__}: {err})") from None
+        raise ValueError(f"{str(path)!r}: cannot read as {suffix} ({type(err).__name__}: {_first_line(err)})") from None
     return check_points(xyz, name=str(path))
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..core.geometry import MAP_SIZE, MapGeometry
-from ..core.torchfile import atomic_save
+from ..core.torchfile import atomic_save, read_error
 from ..models import ModelConfig, build_generator
 from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
@@ -73,7 +73,7 @@ class Reconstructor:
         try:
             state = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as err:
-            raise ValueError(f"model file {str(path)!r} cannot be read ({type(err).__name__}: {err})") from None
+            raise ValueError(f"model file {str(path)!r} cannot be read ({read_error(err)})") from None
         if "model" in state and "netG" in state["model"]:  # a training checkpoint
             cfg = ModelConfig.coerce(state["model"]["config"])
             weights, meta = state["model"]["netG"], {"config": state.get("config", {}), "step": state.get("step")}

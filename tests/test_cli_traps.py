@@ -55,3 +55,16 @@ def test_a_model_file_with_pickled_objects_is_refused_without_torch_advice(tmp_p
     err = capsys.readouterr().err
     assert "evil.pt" in err and "never loaded (weights_only=True)" in err
     assert "weights_only=False" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_missing_input_is_named_before_the_output(tmp_path, capsys):
+    missing = tmp_path / "no_such_folder" / "scan.npy"
+    assert main(["reconstruct", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert f"{str(missing)!r}: no such file" in err and "--out" not in err
+
+
+def test_generate_does_not_offer_all(tmp_path, capsys):
+    assert main(["generate", "2", "--out", str(tmp_path / "d"), "--terrain", "all"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown terrain setting" in err and ", all," not in err and "octave5" in err

@@ -80,7 +80,7 @@ def load_terrain_setting(name: str, augment: bool = False) -> SimConfig:
     path = Path(name)
     if path.suffix not in (".yaml", ".yml"):
         if name not in TERRAIN_PRESETS:
-            raise ValueError(f"terrain={name!r}: unknown terrain setting; choose from {', '.join(terrain_preset_names())}, all, or a .yaml path")
+            raise ValueError(f"terrain={name!r}: unknown terrain setting; choose from {', '.join(sorted(TERRAIN_PRESETS))} or a .yaml path")
         return preset_sim(name, augment)
     if not path.is_file():
         raise ValueError(f"terrain={name!r}: no such file")

@@ -39,6 +39,8 @@ def cmd_reconstruct(args) -> int:
     from ..plots.maps import save_map_preview
 
     source = Path(args.file)
+    if not source.is_file():  # before --out, which defaults to a name beside it
+        raise ValueError(f"{str(source)!r}: no such file")
     out = Path(args.out) if args.out else source.with_suffix(".npz")
     if out.suffix != ".npz":
         raise ValueError(f"--out {str(out)!r}: must end in .npz")

@@ -227,7 +227,10 @@ def log(run: TrainingRun, step: int, bar) -> None:
     writer.add_scalar("lr/discriminator", model.optimizer_D.param_groups[0]["lr"], step)
     writer.add_scalar("throughput/pairs_per_s", meter.pairs / max(meter.busy, 1e-9), step)
     writer.add_scalar("throughput/data_wait_share", meter.wait / max(meter.busy, 1e-9), step)
-    bar.set_postfix(D=f"{losses['discriminator']:.3f}", G=f"{losses['generator_gan']:.3f}", L1=f"{losses['l1']:.3f}", val=f"{run.rmse:.3f}")
+    shown = {"D": f"{losses['discriminator']:.3f}", "G": f"{losses['generator_gan']:.3f}", "L1": f"{losses['l1']:.3f}"}
+    if math.isfinite(run.rmse):  # no validation score before the first validation
+        shown["val"] = f"{run.rmse:.3f}"
+    bar.set_postfix(**shown)
     run.meter = Throughput()
 
 

@@ -27,7 +27,8 @@ under a crown stays open; items of one kind that overlap merge into one slab (th
 
 import warp as wp
 
-from .frames import dihedral_invert, sample_transform
+from .frames import sample_transform
+from .ground_truth import subcell_point
 from .heightfield import surface_height
 from .rng import sample_seed, stream_state
 
@@ -269,11 +270,9 @@ def cell_mean_visible(
     acc = float(0.0)
     for si in range(samples):
         for sj in range(samples):
-            x = (float(p) - half - 0.5 + (float(si) + 0.5) * step) * map_cell
-            y = (float(q) - half - 0.5 + (float(sj) + 0.5) * step) * map_cell
-            w = dihedral_invert(d, wp.vec2(x, y))
-            u = w[0] / cell + 0.5 * float(H - 1)
-            v = w[1] / cell + 0.5 * float(W - 1)
+            uv = subcell_point(p, q, si, sj, half, step, map_cell, d, cell, H, W)
+            u = uv[0]
+            v = uv[1]
             z = surface_height(heights, b, u, v)
             i = wp.clamp(int(wp.floor(u)), 0, H - 2)
             j = wp.clamp(int(wp.floor(v)), 0, W - 2)

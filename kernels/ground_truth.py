@@ -13,6 +13,16 @@ from .frames import dihedral_invert, sample_transform
 from .heightfield import surface_height
 
 
+@wp.func
+def subcell_point(p: int, q: int, si: int, sj: int, half: float, step: float, map_cell: float, d: int, cell: float, H: int, W: int) -> wp.vec2:
+    """Terrain grid coordinates ``(u, v)`` of sub-cell point ``(si, sj)`` of map cell ``(p, q)``
+    (``step = 1 / samples`` of the cell, ``half = (S - 1) / 2``), the sample's transform ``d`` undone."""
+    x = (float(p) - half - 0.5 + (float(si) + 0.5) * step) * map_cell
+    y = (float(q) - half - 0.5 + (float(sj) + 0.5) * step) * map_cell
+    w = dihedral_invert(d, wp.vec2(x, y))
+    return wp.vec2(w[0] / cell + 0.5 * float(H - 1), w[1] / cell + 0.5 * float(W - 1))
+
+
 @wp.kernel
 def cell_mean_heights(
     heights: wp.array3d(dtype=float),
@@ -36,10 +46,8 @@ def cell_mean_heights(
     acc = float(0.0)
     for si in range(samples):
         for sj in range(samples):
-            x = (float(p) - half - 0.5 + (float(si) + 0.5) * step) * map_cell
-            y = (float(q) - half - 0.5 + (float(sj) + 0.5) * step) * map_cell
-            w = dihedral_invert(d, wp.vec2(x, y))
-            acc += surface_height(heights, b, w[0] / cell + 0.5 * float(H - 1), w[1] / cell + 0.5 * float(W - 1))
+            uv = subcell_point(p, q, si, sj, half, step, map_cell, d, cell, H, W)
+            acc += surface_height(heights, b, uv[0], uv[1])
     m = acc * step * step - sensor_z[b]
     target[b, 0, p, q] = m
     wp.atomic_min(target_min, b, m)

@@ -24,7 +24,7 @@ only on ``(seed, first + b)``); one kernel per stage then applies them at every 
 
 import warp as wp
 
-from .noise import PERLIN_2D_BOUND
+from .noise import PERLIN_2D_BOUND, octave_sum
 from .rng import STREAM_TERRAIN, stream_state
 
 # offsets in the terrain stream, past the fBm octaves' (0..15)
@@ -234,16 +234,8 @@ def add_relief(
     b, i, j = wp.tid()
     sample = params[b]
     p = vertex_position(i, j, heights.shape[1], heights.shape[2], cell) / sample.relief_wavelength
-    total = float(0.0)
-    weight = float(1.0)
-    weights = float(0.0)
-    frequency = float(1.0)
-    for o in range(fields.shape[1]):
-        total += weight * wp.noise(fields[b, o], p * frequency + offsets[b, o])
-        weights += weight
-        weight *= 0.5
-        frequency *= 2.0
-    heights[b, i, j] += sample.relief_amplitude * total / (weights * PERLIN_2D_BOUND)
+    s = octave_sum(fields, offsets, b, p, 0.5, 2.0)
+    heights[b, i, j] += sample.relief_amplitude * s[0] / (s[1] * PERLIN_2D_BOUND)
 
 
 @wp.kernel

@@ -58,6 +58,23 @@ def fade(t: float) -> float:
     return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 
 
+@wp.func
+def octave_sum(fields: wp.array2d(dtype=wp.uint32), offsets: wp.array2d(dtype=wp.vec2), b: int, p: wp.vec2, persistence: float,
+               lacunarity: float) -> wp.vec2:
+    """``(sum of weighted octaves of wp.noise at p, sum of the weights)`` for sample ``b``: octave
+    ``o`` is its own field at its own offset, ``persistence**o`` strong and ``lacunarity**o`` finer."""
+    total = float(0.0)
+    weight = float(1.0)
+    weights = float(0.0)
+    frequency = float(1.0)
+    for o in range(fields.shape[1]):
+        total += weight * wp.noise(fields[b, o], p * frequency + offsets[b, o])
+        weights += weight
+        weight *= persistence
+        frequency *= lacunarity
+    return wp.vec2(total, weights)
+
+
 @wp.kernel
 def fractal_heightfield(
     fields: wp.array2d(dtype=wp.uint32),
@@ -75,16 +92,8 @@ def fractal_heightfield(
         vertex_coordinate(i, heights.shape[1], cell, feature_size[b]),
         vertex_coordinate(j, heights.shape[2], cell, feature_size[b]),
     )
-    total = float(0.0)
-    weight = float(1.0)
-    weights = float(0.0)
-    frequency = float(1.0)
-    for o in range(fields.shape[1]):
-        total += weight * wp.noise(fields[b, o], p * frequency + offsets[b, o])
-        weights += weight
-        weight *= persistence
-        frequency *= lacunarity
-    heights[b, i, j] = amplitude[b] * total / (weights * PERLIN_2D_BOUND)
+    s = octave_sum(fields, offsets, b, p, persistence, lacunarity)
+    heights[b, i, j] = amplitude[b] * s[0] / (s[1] * PERLIN_2D_BOUND)
 
 
 @wp.kernel

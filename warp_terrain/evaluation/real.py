@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
+from ..core.geometry import MapGeometry
 from ..data.seeds import TEST_SEED_BASE
 from ..sim import generate_batch, project_points, resolve_device
 from ..sim.dem import DemConfig
@@ -58,6 +59,7 @@ HIDE_SHARE = 0.2
 RAISED_M = 0.3
 #: The neighbourhood (cells, radius) whose lowest observed height stands for the local ground.
 GROUND_RADIUS_CELLS = 8
+MAP = MapGeometry()  #: real scans are scored on the training maps' geometry
 MISSING_HINT = "run `make real-data` (or set WARP_TERRAIN_REAL_DATA to the folder it made)"
 #: The synthetic settings whose statistics are shown beside the real families' (those that exist).
 WORLD_SETTINGS = ("octave3", "octave5", "flat_cylinders", "negative_obstacles", "wide")
@@ -95,7 +97,7 @@ def real_data_dir(data_dir=None) -> Path:
 
 
 # ------------------------------------------------------------------------------ real terrain
-def _dem_sim(family: RealFamily, folder: Path, size_seed: int):
+def _dem_sim(family: RealFamily, folder: Path):
     sim = setting_config("octave5")
     sim.terrain.name = family.name
     sim.terrain.source = "dem"
@@ -111,7 +113,7 @@ def _dem_sim(family: RealFamily, folder: Path, size_seed: int):
 def dem_family_set(family: RealFamily, folder: Path, size: int, device: str) -> EvalSet:
     """The fixed test set of one real-terrain family (seed ``REAL_SEED_BASE + family index``)."""
     seed = REAL_SEED_BASE + DEM_FAMILIES.index(family)
-    sim = _dem_sim(family, folder, seed)
+    sim = _dem_sim(family, folder)
     b = generate_batch(size, sim, seed=seed, device=device)
     ts = EvalSet(family.name, 0.0, sim, [seed], b.scan.cpu().clone(), b.mask.cpu().clone(), b.target.cpu().clone())
     if family.obstacles:
@@ -228,7 +230,7 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
                      "metrics": {}, "statistics": map_statistics(ts.target, ts.mask, ts.sim.data.map_cell, ts.ground)}
             run(entry, ts.scan, ts.mask, lambda pred, ts=ts, in_range=in_range: score(pred, ts, in_range))
         else:
-            ss = scan_family_set(family, folder, repeats, 121, 0.25, REAL_SEED_BASE + 100 + SCAN_FAMILIES.index(family))
+            ss = scan_family_set(family, folder, repeats, MAP.size, MAP.cell, REAL_SEED_BASE + 100 + SCAN_FAMILIES.index(family))
             entry = {"family": family.name, "kind": "scan", "note": f"{HIDE_SHARE:.0%} of observed cells hidden, {repeats} repeats",
                      "observed_share": ss.observed_share, "metrics": {}}
             run(entry, ss.scan, ss.mask, lambda pred, ss=ss: score_scan_set(pred, ss))

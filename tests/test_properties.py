@@ -269,6 +269,26 @@ def write_cloud(fmt: str, path, xyz: np.ndarray, data) -> float:
         array = xyz.astype(dtype)
         np.save(path, np.asfortranarray(array) if data.draw(st.booleans(), label="fortran") else array)
         return 0.0
+    if fmt == "npz":  # a (N, 3+) 'points' / 'xyz' array, or x, y, z arrays
+        layout = data.draw(st.sampled_from(["points", "xyz", "columns"]), label="npz layout")
+        extra = data.draw(st.integers(0, 2), label="npz extra columns")
+        if layout == "columns":
+            np.savez(path, x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2])
+        else:
+            np.savez(path, **{layout: np.concatenate([xyz, np.ones((len(xyz), extra), xyz.dtype)], axis=1)})
+        return 0.0
+    if fmt == "bin":  # KITTI: float32 x, y, z, intensity
+        np.concatenate([xyz, np.full((len(xyz), 1), 0.5, np.float32)], axis=1).astype("<f4").tofile(path)
+        return 0.0
+    if fmt == "csv":  # text: any separator, a header or none, extra columns; %.17g round-trips exactly
+        sep = data.draw(st.sampled_from([",", " ", "\t", ", "]), label="csv separator")
+        header = data.draw(st.sampled_from(["", "x,y,z,i", "# x y z i", "i z y x"]), label="csv header")
+        columns = np.concatenate([xyz.astype(np.float64), np.full((len(xyz), 1), 7.0)], axis=1)
+        if header == "i z y x":
+            columns = columns[:, ::-1]
+        lines = [sep.join(f"{v:.17g}" for v in row) for row in columns]
+        path.write_text("\n".join(([header.replace(",", sep.strip() or " ")] if header else []) + lines) + "\n")
+        return 0.0
     if fmt == "ply":
         from plyfile import PlyData, PlyElement
 
@@ -297,7 +317,7 @@ def write_cloud(fmt: str, path, xyz: np.ndarray, data) -> float:
     return scale
 
 
-FORMATS = ["npy", "ply", "pcd", "las", "laz"]
+FORMATS = ["npy", "npz", "bin", "csv", "ply", "pcd", "las", "laz"]
 FINITE = st.floats(-1e4, 1e4, width=32)  # LAS stores int32 steps of at least 1e-4 around its offset
 
 
@@ -309,7 +329,7 @@ def test_files_round_trip(tmp_path_factory, fmt, xyz, data):
     path = tmp_path_factory.mktemp("rt") / f"cloud.{fmt}"
     step = write_cloud(fmt, path, xyz, data)
     got = read_point_cloud(path)
-    assert got.dtype == np.float32 and got.shape == xyz.shape and got.flags.c_contiguous
+    assert got.dtype == np.float64 and got.shape == xyz.shape and got.flags.c_contiguous  # float64 until the sensor frame
     if step == 0.0:
         np.testing.assert_array_equal(got, xyz)
     else:
@@ -318,7 +338,7 @@ def test_files_round_trip(tmp_path_factory, fmt, xyz, data):
 
 @settings(BASE, max_examples=100)
 @given(
-    st.sampled_from(["npy", "ply", "pcd"]),
+    st.sampled_from(["npy", "npz", "bin", "csv", "ply", "pcd"]),
     hnp.arrays(np.float32, st.tuples(st.integers(1, 40), st.just(3)), elements=FINITE),
     st.data(),
 )
@@ -340,7 +360,7 @@ def test_files_with_nan_rows_drop_them_with_a_warning(tmp_path_factory, fmt, xyz
     np.testing.assert_allclose(got, xyz[~bad], rtol=1e-6, atol=step / 2 * 1.001)
 
 
-@pytest.mark.parametrize("fmt", ["npy", "ply", "pcd", "las", "laz"])
+@pytest.mark.parametrize("fmt", FORMATS)
 def test_empty_files_are_refused(tmp_path, fmt):
     """A file with no points, or no bytes at all, is a ValueError naming the file."""
     path = tmp_path / f"empty.{fmt}"
@@ -354,6 +374,12 @@ def test_empty_files_are_refused(tmp_path, fmt):
         PlyData([PlyElement.describe(np.zeros(0, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]), "vertex")]).write(str(path))
     elif fmt == "pcd":
         path.write_text("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA binary\n")
+    elif fmt == "npz":
+        np.savez(path, points=np.zeros((0, 4), np.float32))
+    elif fmt == "bin":
+        path.write_bytes(b"")
+    elif fmt == "csv":
+        path.write_text("x,y,z,intensity\n")
     else:
         np.save(path, np.zeros((0, 3), np.float32))
     with pytest.raises(ValueError, match="empty"):
@@ -364,14 +390,14 @@ def test_empty_files_are_refused(tmp_path, fmt):
         read_point_cloud(blank)
 
 
-MAGIC = {"npy": b"\x93NUMPY\x01\x00", "ply": b"ply\nformat binary_little_endian 1.0\n", "pcd": b"# .PCD v0.7\nFIELDS x y z\n", "las": b"LASF", "laz": b"LASF"}
+MAGIC = {"npy": b"\x93NUMPY\x01\x00", "npz": b"PK\x03\x04", "bin": b"\x00\x00\x80\x3f" * 4, "csv": b"x,y,z\n1,2,3\n", "ply": b"ply\nformat binary_little_endian 1.0\n", "pcd": b"# .PCD v0.7\nFIELDS x y z\n", "las": b"LASF", "laz": b"LASF"}
 
 
 @settings(BASE, max_examples=200)
 @given(st.sampled_from(FORMATS), st.booleans(), st.binary(max_size=400))
 def test_garbage_files_fail_naming_the_file(tmp_path_factory, fmt, magic, payload):
     """Random bytes (after the format's magic or not) behind a valid suffix: a ValueError naming
-    the file, or, if they happen to parse, a valid finite (N, 3) float32 cloud."""
+    the file, or, if they happen to parse, a valid finite (N, 3) float64 cloud."""
     path = tmp_path_factory.mktemp("junk") / f"junk.{fmt}"
     path.write_bytes((MAGIC[fmt] if magic else b"") + payload)
     try:
@@ -381,7 +407,7 @@ def test_garbage_files_fail_naming_the_file(tmp_path_factory, fmt, magic, payloa
         assert "junk" in str(err)
     else:
         event("parsed")
-        assert got.dtype == np.float32 and got.ndim == 2 and got.shape[1] == 3 and np.isfinite(got).all()
+        assert got.dtype == np.float64 and got.ndim == 2 and got.shape[1] == 3 and np.isfinite(got).all()
 
 
 @settings(BASE, max_examples=150)
@@ -394,7 +420,7 @@ def test_garbage_files_fail_naming_the_file(tmp_path_factory, fmt, magic, payloa
 )
 def test_corrupted_files_fail_naming_the_file(tmp_path_factory, fmt, xyz, keep, patches, data):
     """A valid file cut short and/or with bytes overwritten: a ValueError naming the file, or a
-    valid finite (N, 3) float32 cloud, never another exception or a hang."""
+    valid finite (N, 3) float64 cloud, never another exception or a hang."""
     path = tmp_path_factory.mktemp("cut") / f"cut.{fmt}"
     write_cloud(fmt, path, xyz, data)
     blob = bytearray(path.read_bytes())
@@ -409,7 +435,7 @@ def test_corrupted_files_fail_naming_the_file(tmp_path_factory, fmt, xyz, keep, 
         assert "cut" in str(err)
     else:
         event("parsed")
-        assert got.dtype == np.float32 and got.ndim == 2 and got.shape[1] == 3 and np.isfinite(got).all()
+        assert got.dtype == np.float64 and got.ndim == 2 and got.shape[1] == 3 and np.isfinite(got).all()
 
 
 @pytest.mark.parametrize(

@@ -143,7 +143,7 @@ def test_unreadable_files_name_the_problem(tmp_path):
     with pytest.raises(ValueError, match="no such file"):
         read_point_cloud(tmp_path / "missing.ply")
     with pytest.raises(ValueError, match="unsupported"):
-        read_point_cloud(tmp_path / "cloud.xyz")
+        read_point_cloud(tmp_path / "cloud.obj")
     bad = tmp_path / "broken.ply"
     bad.write_bytes(b"not a ply file")
     with pytest.raises(ValueError, match="broken.ply"):

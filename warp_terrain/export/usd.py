@@ -18,6 +18,9 @@ terrain | reconstruction | error. (One prim per sample rather than time samples:
 can have its own point count and stays visible and addressable at once; a time-sampled mesh
 would need a fixed topology and shows one sample at a time.)
 
+A map reconstructed from a real cloud has no terrain beside it: ``export_reconstruction``
+writes ``/World/Sensor/LidarPoints`` and ``/World/Reconstruction/Map`` in the sensor frame.
+
 Geometry follows the design contract: vertex ``(i, j)`` of an ``(H, W)`` heightfield is at
 ``x = (i - (H-1)/2) * cell``, ``y = (j - (W-1)/2) * cell``, ``z = h[i, j]`` (stored as float32,
 so the mesh's z equal ``h.astype(float32)`` exactly). Each cell is split into the two triangles
@@ -46,7 +49,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 from ..core.atomic import atomic_path
 
-__all__ = ["USD_SUFFIXES", "check_usd_path", "export_usd", "grid_faces", "grid_normals", "grid_points"]
+__all__ = ["USD_SUFFIXES", "check_usd_path", "export_reconstruction", "export_usd", "grid_faces", "grid_normals", "grid_points"]
 
 USD_SUFFIXES = (".usda", ".usdc")
 
@@ -393,3 +396,60 @@ def _write_atomically(stage, path: Path) -> None:
     layer = Sdf.Layer.Find(str(path))  # a stage of the old file open in this process: show the new one
     if layer is not None:
         layer.Reload(True)
+
+
+def export_reconstruction(path, height, cell, points=None, *, mask=None, uncertainty=None, cmap: str = "viridis",
+                          point_width: float = 0.05) -> Path:
+    """Write a USD stage (``.usda``/``.usdc``) of a map reconstructed from a real cloud (no
+    terrain to show beside it); returns the written path. The stage is the sensor frame itself
+    (metres, Z up; ``/World`` at the LIDAR)::
+
+        /World
+          Sensor/LidarPoints      Points: ``points`` (N, 3), sensor frame, those over the map only
+          Reconstruction/Map      Mesh: ``height`` (S, S), vertex (i, j) at the centre of map cell
+                                  (i, j), z = height[i, j]; primvars ``observed`` (the mask, 0/1)
+                                  and ``uncertainty`` (sigma, m) when given
+
+    Points and mesh share one height colour scale (``cmap``); points outside the map's square
+    are left out (a georeferenced tile can hold millions of them far from the sensor).
+    Raises ``ValueError`` before any work for a bad path, shapes, non-finite heights or cell."""
+    path = check_usd_path(path)
+    cell = _check_positive("cell", cell)
+    h = _check_grid("height", height, 1)[0]
+    extras = {}
+    for name, primvar, value in (("mask", "observed", mask), ("uncertainty", "uncertainty", uncertainty)):
+        if value is not None:
+            if name == "mask" and isinstance(value, np.ndarray) and value.dtype == bool:
+                value = value.astype(np.float32)
+            a = _as_array(name, value).astype(np.float32)
+            if a.shape != h.shape:
+                raise ValueError(f"{name}: shape {a.shape} is not the map's {h.shape}")
+            extras[primvar] = np.ascontiguousarray(a)
+    pts = None
+    if points is not None:
+        pts = _check_points(points, 1)[0]
+        half = np.float32(0.5 * h.shape[0] * cell), np.float32(0.5 * h.shape[1] * cell)
+        pts = pts[(np.abs(pts[:, 0]) <= half[0]) & (np.abs(pts[:, 1]) <= half[1])]
+    width = _check_positive("point_width", point_width)
+    if cmap not in matplotlib.colormaps:
+        raise ValueError(f"cmap={cmap!r}: not a matplotlib colormap")
+
+    stage = Usd.Stage.CreateInMemory(f"anon{path.suffix}")
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = _xform(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    stage.GetRootLayer().documentation = ("warp-terrain reconstruct: a reconstructed elevation map and the LIDAR points "
+                                          "it was made from, both in the sensor frame; metres, Z up")
+    lo, hi = float(h.min()), float(h.max())
+    if pts is not None:
+        _xform(stage, "/World/Sensor")
+        _points_prim(stage, "/World/Sensor/LidarPoints", pts, width, _colors(pts[:, 2], lo, hi, cmap))
+    _xform(stage, "/World/Reconstruction")
+    mesh = _grid_mesh(stage, "/World/Reconstruction/Map", h, cell, _colors(h, lo, hi, cmap),
+                      "reconstructed elevation map, sensor frame (metres); vertex (i, j) at the centre of map cell (i, j)")
+    for name, a in extras.items():
+        pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
+        pv.Set(Vt.FloatArray.FromNumpy(a.reshape(-1)))
+    _write_atomically(stage, path)
+    return path

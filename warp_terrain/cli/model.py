@@ -1,9 +1,10 @@
-"""Using a trained model: ``warp-terrain reconstruct`` (a point-cloud file to a map),
+"""Using a trained model: ``warp-terrain reconstruct`` (point-cloud files to maps: .npz, GeoTIFF, USD),
 ``warp-terrain export-onnx`` and ``warp-terrain package-model``."""
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 from .args import _add_device, _add_model, _add_tta, _non_negative_int, _positive_int
@@ -11,12 +12,29 @@ from .args import _add_device, _add_model, _add_tta, _non_negative_int, _positiv
 
 # ------------------------------------------------------------------------------ reconstruct
 def add_reconstruct(sub) -> None:
-    p = sub.add_parser("reconstruct", help="elevation map from a point-cloud file (.npy .ply .pcd .las .laz)",
-                       description="Read a point cloud, move it into the sensor frame, project it into a map and fill "
-                                   "it in with the model. Writes an .npz (height, mask, and uncertainty: each cell's standard "
-                                   "deviation in metres, if the model predicts one) and a PNG preview.")
-    p.add_argument("file", help="the point cloud (.npy (N,3), .ply, .pcd, .las, .laz)")
-    p.add_argument("--out", default=None, metavar="OUT.npz", help="output (default: FILE with .npz); a PNG preview is written beside it")
+    p = sub.add_parser("reconstruct", help="elevation maps from point-cloud files (.npy .npz .bin .xyz .csv .txt .ply .pcd .las .laz)",
+                       description="Read point clouds, move them into the sensor frame, project each into a map and fill "
+                                   "it in with the model. Writes per input a map (.npz: height, mask, and uncertainty, each "
+                                   "cell's standard deviation in metres, if the model predicts one; or a GeoTIFF of those "
+                                   "three bands), a PNG of the three beside it, and with --usd a USD stage of the points and "
+                                   "the map. Existing files are never replaced without --overwrite.")
+    p.add_argument("files", nargs="+", metavar="FILE",
+                   help="point clouds: .npy/.npz ((N,3+) x, y, z first, extra columns ignored; .npz: a 'points' or 'xyz' array "
+                        "or x, y, z arrays), KITTI .bin (float32 x, y, z, intensity), .xyz/.csv/.txt (an optional header "
+                        "naming x, y, z), .ply, .pcd, .las, .laz")
+    p.add_argument("--out", default=None, metavar="OUT",
+                   help="OUT.npz or OUT.tif/.tiff for one input (the format follows the suffix), or a folder (an existing "
+                        "one, or a name ending in /) for one file set per input, named by its stem (stem_ext when two "
+                        "inputs share a stem); default: beside each input. A PNG preview is written beside each map")
+    p.add_argument("--format", choices=("npz", "tif"), default=None,
+                   help="the map format when --out is a folder or not given (default npz)")
+    p.add_argument("--crs", default=None, metavar="CRS",
+                   help="GeoTIFF only: the coordinate reference system the points are in (EPSG:32633, WKT or PROJ); "
+                        "the map lands where --transform's sensor pose puts it. Without it the GeoTIFF is in local metres, no CRS")
+    p.add_argument("--usd", default=None, metavar="OUT.usda",
+                   help="also write the points over the map and the reconstruction as a USD stage (.usda or .usdc); "
+                        "with several inputs a folder, one STEM.usda per input")
+    p.add_argument("--overwrite", action="store_true", help="replace output files that exist (default: refuse before any work)")
     p.add_argument("--map-size", type=_positive_int, default=None, metavar="S",
                    help="cells per side (default: the model's training maps, 121 for the shipped model)")
     p.add_argument("--map-cell", type=float, default=None, metavar="M",
@@ -29,37 +47,153 @@ def add_reconstruct(sub) -> None:
     p.set_defaults(func=cmd_reconstruct)
 
 
+def _is_folder_arg(value: str) -> bool:
+    """A folder named on the command line: an existing one, or a name ending in a slash."""
+    from pathlib import Path
+
+    return value.endswith(("/", os.sep)) or Path(value).is_dir()
+
+
+def _folder(value: str, option: str):
+    """The folder ``value`` names, if it exists or its parent does (it is made once every check passed)."""
+    from pathlib import Path
+
+    folder = Path(value)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {value!r}: is a file, not a folder")
+    if not folder.exists() and not folder.resolve().parent.is_dir():
+        raise ValueError(f"{option} {value!r}: the folder {str(folder.resolve().parent)!r} does not exist")
+    return folder
+
+
+def _plan_outputs(sources, args) -> tuple[list[dict], list]:
+    """Per input, the paths it will write (``map``, ``png``, ``usd`` or None) and the map
+    ``format``, plus the folders to make; every conflict (two inputs on one name, an output over
+    an input, an existing file without --overwrite, contradictory options) refused before any
+    work, naming the file. Nothing is written here."""
+    from pathlib import Path
+
+    from ..export.usd import check_usd_path
+    from ..inference.maps import map_format
+
+    fmt = args.format
+    folders_to_make = []
+    if args.out is not None and not _is_folder_arg(args.out):  # one named file
+        if len(sources) > 1:
+            raise ValueError(f"--out {args.out!r}: names one file but {len(sources)} inputs were given; give a folder (--out DIR/)")
+        try:
+            fmt_out = map_format(args.out)
+        except ValueError:
+            raise ValueError(f"--out {args.out!r}: must end in .npz, .tif or .tiff, or name a folder") from None
+        if fmt is not None and fmt != fmt_out:
+            raise ValueError(f"--format {fmt} contradicts --out {args.out!r}; give one")
+        fmt = fmt_out
+        out = Path(args.out)
+        if not out.resolve().parent.is_dir():
+            raise ValueError(f"--out {args.out!r}: the folder {str(out.resolve().parent)!r} does not exist")
+        named = [(out, out.with_suffix(".png"), out.stem)]
+    else:  # one file set per input, named by its stem, in --out or beside the input
+        fmt = fmt or "npz"
+        out_folder = None if args.out is None else _folder(args.out, "--out")
+        if out_folder is not None and not out_folder.exists():
+            folders_to_make.append(out_folder)
+        folders = [out_folder or source.parent for source in sources]
+        inputs = {source.resolve() for source in sources}
+        keys = [(str(folder.resolve()), source.stem.casefold()) for folder, source in zip(folders, sources)]
+        named = []
+        for i, (folder, source) in enumerate(zip(folders, sources)):
+            shared = keys.count(keys[i]) > 1 or (folder / f"{source.stem}.{fmt}").resolve() in inputs
+            name = f"{source.stem}_{source.suffix.lstrip('.').lower()}" if shared else source.stem
+            named.append((folder / f"{name}.{fmt}", folder / f"{name}.png", name))
+    usd_folder = None
+    if args.usd is not None:
+        if _is_folder_arg(args.usd):
+            usd_folder = _folder(args.usd, "--usd")
+            if not usd_folder.exists():
+                folders_to_make.append(usd_folder)
+        elif len(sources) > 1:
+            raise ValueError(f"--usd {args.usd!r}: names one stage but {len(sources)} inputs were given; give a folder (--usd DIR/)")
+        else:
+            try:
+                check_usd_path(args.usd)
+            except ValueError as err:
+                raise ValueError(f"--usd {str(err).removeprefix('path=')}") from None
+    if args.crs is not None and fmt != "tif":
+        raise ValueError(f"--crs {args.crs!r}: only a GeoTIFF carries a CRS; write --out NAME.tif or --format tif")
+    plans = []
+    for source, (map_path, png, name) in zip(sources, named):
+        usd = None if args.usd is None else (usd_folder / f"{name}.usda" if usd_folder is not None else Path(args.usd))
+        plans.append({"source": source, "format": fmt, "map": map_path, "png": png, "usd": usd})
+    inputs = {source.resolve(): source for source in sources}
+    seen: dict = {}
+    for plan in plans:
+        for path in (plan["map"], plan["png"], plan["usd"]):
+            if path is None:
+                continue
+            real = path.resolve()
+            if real in inputs:
+                raise ValueError(f"{str(path)!r}: the output would overwrite the input {str(inputs[real])!r}; give --out")
+            if real in seen:
+                raise ValueError(f"{str(path)!r}: both {str(seen[real])!r} and {str(plan['source'])!r} would write it; "
+                                 "rename one or run them separately")
+            seen[real] = plan["source"]
+            if path.exists() and not args.overwrite:
+                raise ValueError(f"{str(path)!r}: exists; pass --overwrite to replace it")
+    return plans, folders_to_make
+
+
 def cmd_reconstruct(args) -> int:
     from pathlib import Path
 
     from ..core.geometry import MapGeometry
-    from ..inference.maps import write_map
-    from ..inference.pointclouds import apply_transform, read_point_cloud, transform_matrix
+    from ..export.usd import export_reconstruction
+    from ..inference.maps import check_crs, need_rasterio, sensor_pose, write_map
+    from ..inference.pointclouds import READERS, apply_transform, read_point_cloud, transform_matrix
     from ..inference.reconstructor import Reconstructor
     from ..plots.maps import save_map_preview
 
-    source = Path(args.file)
-    if not source.is_file():  # before --out, which defaults to a name beside it
-        raise ValueError(f"{str(source)!r}: no such file")
-    out = Path(args.out) if args.out else source.with_suffix(".npz")
-    if out.suffix != ".npz":
-        raise ValueError(f"--out {str(out)!r}: must end in .npz")
-    if not out.resolve().parent.is_dir():
-        raise ValueError(f"--out {str(out)!r}: the folder {str(out.resolve().parent)!r} does not exist")
+    sources = [Path(f) for f in args.files]
+    for source in sources:  # before --out, which defaults to names beside them
+        if not source.is_file():
+            raise ValueError(f"{str(source)!r}: no such file")
+        if source.suffix.lower() not in READERS:
+            raise ValueError(f"{str(source)!r}: unsupported point-cloud format {source.suffix or '(none)'!r}; use one of {', '.join(sorted(READERS))}")
     matrix = transform_matrix([float(v) for v in args.transform.split(",")]) if args.transform else None
-    points = read_point_cloud(source)
-    if matrix is not None:
-        points = apply_transform(points, matrix)
+    plans, folders_to_make = _plan_outputs(sources, args)
+    crs = None
+    if plans[0]["format"] == "tif":
+        need_rasterio()
+        try:
+            crs = check_crs(args.crs)
+        except ValueError as err:
+            raise ValueError(f"--{err}") from None
+        if matrix is not None:
+            try:
+                sensor_pose(matrix)
+            except ValueError as err:
+                raise ValueError(f"--transform {args.transform!r}: {str(err).removeprefix('transform: ')}") from None
     rec = Reconstructor.load(args.model, device=args.device, tta=args.tta)
     geometry = MapGeometry(*rec.resolve_geometry(args.map_size, args.map_cell))
-    maps = rec.reconstruct_all(points, geometry.size, geometry.cell)
-    write_map(out, maps, geometry)
-    png = out.with_suffix(".png")
-    save_map_preview(maps["height"], maps["mask"], geometry.cell, png, title=source.name)
-    print(json.dumps({"npz": str(out), "png": str(png), "points": int(len(points)), "observed_cells": int(maps["mask"].sum()),
-                      "map_size": geometry.size, "map_cell": geometry.cell, "uncertainty": "uncertainty" in maps}))
+    for folder in folders_to_make:  # every check passed: a refused run leaves no folder
+        folder.mkdir(exist_ok=True)
+    for plan in plans:
+        source = plan["source"]
+        points = read_point_cloud(source)
+        if matrix is not None:
+            points = apply_transform(points, matrix)
+        maps = rec.reconstruct_all(points, geometry.size, geometry.cell)
+        if plan["format"] == "tif":
+            write_map(plan["map"], maps, geometry, transform=matrix, crs=crs)
+        else:
+            write_map(plan["map"], maps, geometry)
+        save_map_preview(maps["height"], maps["mask"], geometry.cell, plan["png"], title=source.name, uncertainty=maps.get("uncertainty"))
+        if plan["usd"] is not None:
+            export_reconstruction(plan["usd"], maps["height"], geometry.cell, points, mask=maps["mask"], uncertainty=maps.get("uncertainty"))
+        print(json.dumps({"input": str(source), "map": str(plan["map"]), "format": plan["format"], "png": str(plan["png"]),
+                          "usd": None if plan["usd"] is None else str(plan["usd"]), "points": int(len(points)),
+                          "observed_cells": int(maps["mask"].sum()), "map_size": geometry.size, "map_cell": geometry.cell,
+                          "uncertainty": "uncertainty" in maps, "crs": None if crs is None else crs.to_string()}), flush=True)
     return 0
-
 
 # ------------------------------------------------------------------------------ export-onnx
 def add_export_onnx(sub) -> None:

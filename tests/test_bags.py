@@ -3,6 +3,7 @@ writers (ROS 1 .bag, ROS 2 folders with .db3 and .mcap storage, a bare .mcap) re
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -12,6 +13,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from warp_terrain.cli import main
 from warp_terrain.inference.bags import BagClouds, is_bag, pointcloud2_xyz
 
 ROS1, ROS2 = get_typestore(Stores.ROS1_NOETIC), get_typestore(Stores.ROS2_HUMBLE)
@@ -173,3 +175,55 @@ def test_missing_bags_and_plain_folders(tmp_path):
     assert not is_bag(tmp_path) and not is_bag(tmp_path / "x.npy") and is_bag(tmp_path / "x.bag")
     with pytest.raises(ValueError, match="every=0: must be a whole number >= 1"):
         BagClouds(write_bag(tmp_path / "b.bag", "ros1"), every=0)
+def test_reconstruct_writes_one_map_per_nth_message(tmp_path, capsys):
+    path = write_bag(tmp_path / "drive.bag", "ros1", n=3)
+    out = tmp_path / "maps"
+    assert main(["reconstruct", str(path), "--every", "2", "--out", str(out), "--no-tta"]) == 0
+    captured = capsys.readouterr()
+    reports = [json.loads(line) for line in captured.out.splitlines()]
+    assert sorted(p.name for p in out.iterdir()) == ["drive_0000.npz", "drive_0000.png", "drive_0002.npz", "drive_0002.png"]
+    assert [(r["topic"], r["index"], r["timestamp"], r["points"]) for r in reports] == [("/points", 0, 1_000_000_000, 5), ("/points", 2, 1_200_000_000, 5)]
+    assert [r["map"] for r in reports] == [str(out / "drive_0000.npz"), str(out / "drive_0002.npz")]
+    assert "2/2" in captured.err  # the progress bar
+    # each map is the one the same points give through a file
+    np.save(tmp_path / "two.npy", np.delete(cloud(2), 2, axis=0))
+    assert main(["reconstruct", str(tmp_path / "two.npy"), "--out", str(tmp_path / "two.npz"), "--no-tta"]) == 0
+    one, other = np.load(out / "drive_0002.npz"), np.load(tmp_path / "two.npz")
+    np.testing.assert_array_equal(one["mask"], other["mask"])
+    np.testing.assert_array_equal(one["height"], other["height"])
+    # again: refused before any work, then replaced with --overwrite; a ROS 2 folder too, with --transform
+    assert main(["reconstruct", str(path), "--every", "2", "--out", str(out), "--no-tta"]) == 2
+    assert f"{str(out / 'drive_0000.npz')!r}: exists; pass --overwrite to replace it" in capsys.readouterr().err
+    assert main(["reconstruct", str(path), "--every", "2", "--out", str(out), "--no-tta", "--overwrite"]) == 0
+    folder = write_bag(tmp_path / "run2", "mcap", n=2)
+    assert main(["reconstruct", str(folder), "--transform", "0,0,-100,0,0,0", "--no-tta"]) == 0
+    assert sorted(p.name for p in (tmp_path / "run2_maps").iterdir()) == ["run2_0000.npz", "run2_0000.png", "run2_0001.npz", "run2_0001.png"]
+    moved = np.load(tmp_path / "run2_maps" / "run2_0000.npz")
+    np.testing.assert_array_equal(moved["mask"], np.load(out / "drive_0000.npz")["mask"])  # the same points, 100 m lower
+
+
+def test_a_message_outside_the_map_is_skipped_with_a_warning(tmp_path, capsys):
+    path = write_bag(tmp_path / "far.bag", "ros1", n=2)
+    assert main(["reconstruct", str(path), "--transform", "1000,0,0,0,0,0", "--out", str(tmp_path / "m"), "--no-tta"]) == 0
+    captured = capsys.readouterr()
+    assert [json.loads(line)["skipped"] for line in captured.out.splitlines()] == ["none of its 5 points falls inside the map"] * 2
+    assert "warning: far.bag: message 1 on /points: none of its 5 points falls inside the map; skipped" in captured.err
+    assert list((tmp_path / "m").iterdir()) == []
+
+
+def test_reconstruct_refuses_contradictions_before_work(tmp_path, capsys):
+    path = write_bag(tmp_path / "drive.bag", "ros1", topics=("/a", "/b"), n=1)
+    assert main(["reconstruct", str(path), "--out", str(tmp_path / "maps")]) == 2
+    assert "choose one (--topic): /a (1 messages), /b (1 messages)" in capsys.readouterr().err
+    assert main(["reconstruct", str(path), "--topic", "/a", "--out", str(tmp_path / "m.npz")]) == 2
+    assert "a bag gives one map per message: --out names a folder" in capsys.readouterr().err
+    assert main(["reconstruct", str(path), str(path), "--topic", "/a"]) == 2
+    assert "a ROS bag is read on its own: give one bag per run, not 2 inputs" in capsys.readouterr().err
+    assert main(["reconstruct", str(path), "--topic", "/a", "--usd", str(tmp_path / "s.usda")]) == 2
+    assert "--usd is not supported for ROS bags yet" in capsys.readouterr().err
+    np.save(tmp_path / "p.npy", cloud(0))
+    assert main(["reconstruct", str(tmp_path / "p.npy"), "--topic", "/a"]) == 2
+    assert "--topic and --every read ROS bags" in capsys.readouterr().err
+    assert main(["reconstruct", str(tmp_path / "gone.bag")]) == 2
+    assert f"{str(tmp_path / 'gone.bag')!r}: no such file" in capsys.readouterr().err
+    assert not (tmp_path / "maps").exists() and not (tmp_path / "drive_maps").exists()

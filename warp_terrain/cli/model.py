@@ -12,16 +12,19 @@ from .args import _add_device, _add_model, _add_tta, _non_negative_int, _positiv
 
 # ------------------------------------------------------------------------------ reconstruct
 def add_reconstruct(sub) -> None:
-    p = sub.add_parser("reconstruct", help="elevation maps from point-cloud files (.npy .npz .bin .xyz .csv .txt .ply .pcd .las .laz)",
+    p = sub.add_parser("reconstruct", help="elevation maps from point-cloud files or a ROS bag (.npy .npz .bin .xyz .csv .txt .ply .pcd .las .laz .bag .mcap)",
                        description="Read point clouds, move them into the sensor frame, project each into a map and fill "
                                    "it in with the model. Writes per input a map (.npz: height, mask, and uncertainty, each "
                                    "cell's standard deviation in metres, if the model predicts one; or a GeoTIFF of those "
                                    "three bands), a PNG of the three beside it, and with --usd a USD stage of the points and "
-                                   "the map. Existing files are never replaced without --overwrite.")
+                                   "the map. Existing files are never replaced without --overwrite. A ROS bag (.bag, a ROS 2 "
+                                   "bag folder, .mcap) gives one map per PointCloud2 message (--topic, --every) into a folder.")
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="point clouds: .npy/.npz ((N,3+) x, y, z first, extra columns ignored; .npz: a 'points' or 'xyz' array "
                         "or x, y, z arrays), KITTI .bin (float32 x, y, z, intensity), .xyz/.csv/.txt (an optional header "
-                        "naming x, y, z), .ply, .pcd, .las, .laz")
+                        "naming x, y, z), .ply, .pcd, .las, .laz; or one ROS bag: a ROS 1 .bag, a ROS 2 bag folder or an "
+                        ".mcap file, one map per sensor_msgs/PointCloud2 message, written as STEM_INDEX.npz + .png into "
+                        "the --out folder (default STEM_maps beside the bag)")
     p.add_argument("--out", default=None, metavar="OUT",
                    help="OUT.npz or OUT.tif/.tiff for one input (the format follows the suffix), or a folder (an existing "
                         "one, or a name ending in /) for one file set per input, named by its stem (stem_ext when two "
@@ -41,6 +44,10 @@ def add_reconstruct(sub) -> None:
                    help="cell size in metres (default: the model's training maps, 0.25 for the shipped model)")
     p.add_argument("--transform", default=None, metavar="VALUES",
                    help="points -> sensor frame: 16 comma-separated values (a 4x4 matrix, row-major) or 6 (x,y,z,roll,pitch,yaw in m and degrees)")
+    p.add_argument("--topic", default=None, metavar="TOPIC",
+                   help="ROS bags: the PointCloud2 topic (needed when the bag has several; they are listed if not given)")
+    p.add_argument("--every", type=_positive_int, default=None, metavar="N",
+                   help="ROS bags: one map per Nth PointCloud2 message, from the first (default 1: every message)")
     _add_model(p)
     _add_tta(p)
     _add_device(p)
@@ -147,12 +154,18 @@ def cmd_reconstruct(args) -> int:
 
     from ..core.geometry import MapGeometry
     from ..export.usd import export_reconstruction
+    from ..inference.bags import is_bag
     from ..inference.maps import check_crs, need_rasterio, sensor_pose, write_map
     from ..inference.pointclouds import READERS, apply_transform, read_point_cloud, transform_matrix
     from ..inference.reconstructor import Reconstructor
     from ..plots.maps import save_map_preview
+    from .bags import reconstruct_bag
 
     sources = [Path(f) for f in args.files]
+    if any(is_bag(source) for source in sources):  # one map per message into a folder: cli/bags.py
+        return reconstruct_bag(args, sources, transform_matrix([float(v) for v in args.transform.split(",")]) if args.transform else None)
+    if args.topic is not None or args.every is not None:
+        raise ValueError("--topic and --every read ROS bags; the inputs are point-cloud files")
     for source in sources:  # before --out, which defaults to names beside them
         if not source.is_file():
             raise ValueError(f"{str(source)!r}: no such file")

@@ -393,3 +393,26 @@ def test_too_small_raster_and_empty_list_are_refused_before_any_batch(tmp_path):
         sim_for([]).validate()
     with pytest.raises(ValueError, match=r"^terrain\.dem\.files\[0\]='': must be a non-empty path"):
         to_run_config({"terrain": {"dem": {"files": [""]}}})
+
+
+def test_randomised_fbm_world_mixes_in_real_ground_by_dem_probability(tmp_path):
+    """``dem_probability=1``: every batch of the fBm world is cut from the raster (the plane's
+    slope shows in the terrain); 0 keeps the fBm; asking for it without files is refused."""
+    path = plane_tif(tmp_path / "plane.tif", a=0.3, b=-0.2)
+    sim = sim_for([path])
+    sim.terrain.source = "fbm"
+    sim.data.randomize.enabled = True
+    sim.data.randomize.lidars = ["vlp16"]
+    sim.data.randomize.azimuth_step_min_deg = 2.0
+    sim.data.randomize.obstacle_probability = 0.0
+    sim.data.randomize.dem_probability = 1.0
+    sim.validate()
+    heights = wt.generate_batch(2, sim, seed=5, device="cpu").heights.numpy()
+    for h in heights:
+        (gx, gy, _), worst = plane_fit(h, CELL)
+        assert worst < 1e-3 and math.isclose(math.hypot(gx, gy), math.hypot(0.3, 0.2), rel_tol=1e-3)
+    sim.data.randomize.dem_probability = 0.0
+    heights = wt.generate_batch(2, sim, seed=5, device="cpu").heights.numpy()
+    assert all(plane_fit(h, CELL)[1] > 0.01 for h in heights)  # fBm relief, not a plane
+    with pytest.raises(ValueError, match=r"^data\.randomize\.dem_probability=0\.5: .*terrain\.dem\.files"):
+        to_run_config({"data": {"randomize": {"enabled": True, "dem_probability": 0.5}}})

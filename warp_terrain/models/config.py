@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 
 from ..core.checks import require
+from .fill import BASE_FILLS, HEIGHT_REFERENCES
 
 GENERATORS = ("paper", "unet")
 NORMS = ("batch", "instance", "none")
@@ -49,6 +50,18 @@ class ModelConfig:
     # residual only: weight each map's loss by 1 / its observed-height spread (as the scaling above,
     # at least height_scale_min metres), so a rough 4 m hillside does not drown a 5 cm meadow
     relief_relative_loss: bool = False
+    # residual only: the classical fill the net corrects: "push_pull" (a normalised-convolution
+    # pyramid) | "biharmonic" (the thin plate, as skimage's inpaint_biharmonic; models/biharmonic.py)
+    base_fill: str = "push_pull"
+    # residual only: the net sees heights relative to the "mean" observed height or to the observed
+    # cells' least-squares "plane" (slope-robust: a tilted window looks level to the net)
+    height_reference: str = "mean"
+    # residual only: the most (m) the correction may move an observed cell (bound * tanh(c / bound));
+    # 0 leaves observed cells free
+    observed_bound: float = 0.0
+    # residual only: the net's last layer starts at zero, so the untrained model is the base fill
+    # exactly and training only adds what improves on it
+    start_from_fill: bool = False
     # the generator also predicts each cell's log-variance of its height error (a second output
     # channel, trained by the Gaussian NLL of the detached error: the height is learnt as without it)
     uncertainty: bool = False
@@ -69,6 +82,11 @@ class ModelConfig:
                 "expected a number > 0")
         require(_is_number(self.height_scale_min) and 0.0 <= self.height_scale_min < float("inf"), "height_scale_min",
                 self.height_scale_min, "expected a finite number >= 0 (metres; 0 disables the scaling)")
+        require(self.base_fill in BASE_FILLS, "base_fill", self.base_fill, f"expected one of {', '.join(BASE_FILLS)}")
+        require(self.height_reference in HEIGHT_REFERENCES, "height_reference", self.height_reference,
+                f"expected one of {', '.join(HEIGHT_REFERENCES)}")
+        require(_is_number(self.observed_bound) and 0.0 <= self.observed_bound < float("inf"), "observed_bound",
+                self.observed_bound, "expected a finite number >= 0 (metres; 0 leaves observed cells free)")
         require(not self.relief_relative_loss or (self.residual and self.height_scale_min > 0), "relief_relative_loss",
                 self.relief_relative_loss, "needs residual=true and height_scale_min > 0 (the spread's floor)")
         require(not self.residual or self.in_channels == 2, "residual", self.residual,

@@ -23,6 +23,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .biharmonic import biharmonic_fill
+
+#: base fills a ``FillResidualGenerator`` can correct
+BASE_FILLS = ("push_pull", "biharmonic")
+#: what the net's heights are taken relative to: the mean observed height, or the observed cells'
+#: least-squares plane (a tilted window then looks level to the net)
+HEIGHT_REFERENCES = ("mean", "plane")
+
 
 def push_pull_fill(height: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
     """(B, 1, H, W) heights and 0/1 mask -> the same heights with unobserved cells filled.
@@ -48,32 +56,83 @@ def mean_observed(height: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -
 
 
 def observed_spread(height: torch.Tensor, mask: torch.Tensor, reference: torch.Tensor, floor: float) -> torch.Tensor:
-    """(B, 1, 1, 1) standard deviation of each map's observed heights about ``reference``,
+    """(B, 1, 1, 1) root-mean-square of each map's observed heights about ``reference`` (a
+    (B, 1, 1, 1) height or a (B, 1, H, W) surface),
     at least ``floor`` (also for maps with no observed cell)."""
     var = (((height - reference) ** 2) * mask).sum(dim=(2, 3), keepdim=True) / mask.sum(dim=(2, 3), keepdim=True).clamp_min(1.0)
     return var.sqrt().clamp_min(floor)
 
 
+def observed_plane(height: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """(B, 1, H, W): each map's least-squares plane through its observed cells (in cell units),
+    the mean observed height where the cells do not fix a plane (fewer than three, or in a line).
+
+    Closed form (centred 2x2 normal equations, Cramer's rule): elementwise ops only, so it runs
+    batched on any device and exports to ONNX."""
+    h, w = height.shape[-2:]
+    rows = torch.arange(h, dtype=height.dtype, device=height.device).view(1, 1, h, 1).expand(1, 1, h, w)
+    cols = torch.arange(w, dtype=height.dtype, device=height.device).view(1, 1, 1, w).expand(1, 1, h, w)
+    count = mask.sum(dim=(2, 3), keepdim=True).clamp_min(eps)
+
+    def mean(v):
+        return (v * mask).sum(dim=(2, 3), keepdim=True) / count
+
+    mean_z, mean_r, mean_c = mean(height), mean(rows), mean(cols)
+    dz, dr, dc = height - mean_z, rows - mean_r, cols - mean_c
+    srr, scc, src = mean(dr * dr), mean(dc * dc), mean(dr * dc)
+    szr, szc = mean(dz * dr), mean(dz * dc)
+    det = srr * scc - src * src
+    usable = det > eps * (srr + scc).clamp_min(eps) ** 2  # not a line or a point
+    safe = torch.where(usable, det, torch.ones_like(det))
+    a = torch.where(usable, (szr * scc - szc * src) / safe, torch.zeros_like(det))
+    b = torch.where(usable, (szc * srr - szr * src) / safe, torch.zeros_like(det))
+    return mean_z + a * dr + b * dc
+
+
 class FillResidualGenerator(nn.Module):
-    """condition (B, 2, H, W) = (scan, mask) -> push-pull fill + s * net((fill - mean) / s, mask),
-    where s is 1, or the map's observed-height spread (>= ``height_scale_min`` metres) if > 0.
+    """condition (B, 2, H, W) = (scan, mask) -> fill + s * net((fill - reference) / s, mask).
+
+    - ``base``: the classical fill corrected: ``"push_pull"`` (:func:`push_pull_fill`) or
+      ``"biharmonic"`` (:func:`biharmonic_fill`, the thin plate);
+    - ``reference``: ``"mean"`` (the mean observed height) or ``"plane"`` (the observed cells'
+      least-squares plane, :func:`observed_plane`);
+    - s is 1, or the spread of the observed heights about the reference (>= ``height_scale_min``
+      metres) if that is > 0;
+    - ``observed_bound`` > 0 (m): on observed cells the correction is at most this big
+      (``bound * tanh(c / bound)``), so the map keeps what the sensor saw to within its error.
+
     Output channels after the first (a log-variance) come back as ``net + 2 log s``."""
 
-    def __init__(self, net: nn.Module, height_scale_min: float = 0.0):
+    def __init__(self, net: nn.Module, height_scale_min: float = 0.0, base: str = "push_pull", reference: str = "mean",
+                 observed_bound: float = 0.0):
         super().__init__()
+        if base not in BASE_FILLS:
+            raise ValueError(f"base fill {base!r}: expected one of {', '.join(BASE_FILLS)}")
+        if reference not in HEIGHT_REFERENCES:
+            raise ValueError(f"height reference {reference!r}: expected one of {', '.join(HEIGHT_REFERENCES)}")
         self.net = net
         self.height_scale_min = float(height_scale_min)
+        self.base, self.reference, self.observed_bound = base, reference, float(observed_bound)
+
+    def base_fill(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The classical fill the net corrects (no gradient: it has no parameters)."""
+        with torch.no_grad():
+            return biharmonic_fill(scan, mask) if self.base == "biharmonic" else push_pull_fill(scan, mask)
 
     def forward(self, condition: torch.Tensor) -> torch.Tensor:
         scan, mask = condition[:, :1], condition[:, 1:2]
-        fill = push_pull_fill(scan, mask)
-        reference = mean_observed(scan, mask)
+        fill = self.base_fill(scan, mask)
+        reference = height_reference(scan, mask, self.reference)
         if self.height_scale_min > 0:
             scale = observed_spread(scan, mask, reference, self.height_scale_min)
         else:  # metres: dividing and multiplying by exactly 1 changes no bit
-            scale = torch.ones_like(reference)
+            scale = torch.ones_like(reference[:, :, :1, :1])
         out = self.net(torch.cat([(fill - reference) / scale, mask], dim=1))
-        height = fill + scale * out[:, :1]
+        correction = scale * out[:, :1]
+        if self.observed_bound > 0:
+            bounded = self.observed_bound * torch.tanh(correction / self.observed_bound)
+            correction = mask * bounded + (1.0 - mask) * correction
+        height = fill + correction
         return height if out.shape[1] == 1 else torch.cat([height, out[:, 1:] + 2.0 * torch.log(scale)], dim=1)
 
 
@@ -83,14 +142,22 @@ def unobserved_weight_map(mask: torch.Tensor, unobserved_weight: float) -> torch
     return weight / weight.mean(dim=(1, 2, 3), keepdim=True)
 
 
-def loss_weight_map(scan: torch.Tensor, mask: torch.Tensor, unobserved_weight: float = 1.0, relief_floor: float = 0.0) -> torch.Tensor | None:
+def height_reference(scan: torch.Tensor, mask: torch.Tensor, reference: str) -> torch.Tensor:
+    """The surface heights are taken relative to: ``"mean"`` (B, 1, 1, 1) or ``"plane"`` (B, 1, H, W)."""
+    if reference not in HEIGHT_REFERENCES:
+        raise ValueError(f"height reference {reference!r}: expected one of {', '.join(HEIGHT_REFERENCES)}")
+    return observed_plane(scan, mask) if reference == "plane" else mean_observed(scan, mask)
+
+
+def loss_weight_map(scan: torch.Tensor, mask: torch.Tensor, unobserved_weight: float = 1.0, relief_floor: float = 0.0,
+                    reference: str = "mean") -> torch.Tensor | None:
     """Per-cell weights of the L1 (and NLL) terms, or None for the plain mean: unobserved cells
     weighted by ``unobserved_weight`` (:func:`unobserved_weight_map`), and with
-    ``relief_floor > 0`` each map by ``1 / observed_spread`` (at least ``relief_floor``),
-    normalised so the batch's mean weight is 1."""
+    ``relief_floor > 0`` each map by ``1 / observed_spread`` about the ``reference`` surface
+    (at least ``relief_floor``), normalised so the batch's mean weight is 1."""
     weight = unobserved_weight_map(mask, unobserved_weight) if unobserved_weight != 1.0 else None
     if relief_floor <= 0:
         return weight
-    inverse = 1.0 / observed_spread(scan, mask, mean_observed(scan, mask), relief_floor)
+    inverse = 1.0 / observed_spread(scan, mask, height_reference(scan, mask, reference), relief_floor)
     inverse = inverse / inverse.mean()
     return inverse.expand_as(mask) if weight is None else weight * inverse

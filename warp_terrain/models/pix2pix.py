@@ -46,7 +46,14 @@ def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
         net = PaperUNet(cfg.in_channels, channels, cfg.ngf, cfg.norm, cfg.dropout)
     else:
         net = UNet(cfg.in_channels, channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
-    return FillResidualGenerator(net, cfg.height_scale_min) if cfg.residual else net
+    if not cfg.residual:
+        return net
+    if cfg.start_from_fill:
+        last = [m for m in net.modules() if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))][-1]
+        nn.init.zeros_(last.weight)
+        if last.bias is not None:
+            nn.init.zeros_(last.bias)
+    return FillResidualGenerator(net, cfg.height_scale_min, cfg.base_fill, cfg.height_reference, cfg.observed_bound)
 
 
 def build_discriminator(cfg: ModelConfig | Mapping) -> nn.Module:

@@ -81,7 +81,10 @@ class SimConfig:
         self.terrain.validate(files)
         self.lidar.validate()
         self.data.validate()
-        if files and self.terrain.source == "dem":  # every raster must hold a window of the map plus its margin
+        mixes_dem = self.data.randomize.enabled and self.data.randomize.dem_probability > 0
+        require(not mixes_dem or bool(self.terrain.dem.files), "data.randomize.dem_probability",
+                self.data.randomize.dem_probability, "mixes in real ground: name the rasters in terrain.dem.files")
+        if files and (self.terrain.source == "dem" or mixes_dem):  # every raster must hold a window of the map plus its margin
             check_fit(load_dems(self.terrain.dem), terrain_size(self), self.terrain.cell, self.terrain.dem)
 
 

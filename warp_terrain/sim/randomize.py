@@ -6,7 +6,8 @@ every batch draws its own sensor (any preset), mount height, range noise, image 
 centimetres to metres and from a few metres to tens of metres). The draws come from the batch
 seed, so a randomised stream is as reproducible as a fixed one. With ``terrain.source=dem`` the
 relief is real ground: the amplitude, feature-size and octave draws do not apply to it; the
-sensor, obstacles and noise are drawn as on fBm terrain.
+sensor, obstacles and noise are drawn as on fBm terrain. With ``dem_probability`` > 0 an fBm
+world mixes in real ground: that share of batches cut their relief from ``terrain.dem``'s files.
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ class RandomizeConfig:
     obstacle_probability: float = 0.4
     azimuth_step_min_deg: float = 0.4
     noise_max: float = 0.0
+    # probability that a batch's relief is real ground: windows of ``terrain.dem`` (its files,
+    # scale and window draws) instead of the fBm world, obstacles and sensor drawn as for fBm
+    dem_probability: float = 0.0
 
     def validate(self) -> None:
         for key in ("amplitude", "feature_size", "mount_height"):
@@ -56,6 +60,7 @@ class RandomizeConfig:
         require(0.0 <= self.range_noise_max < 1.0, "randomize.range_noise_max", self.range_noise_max, "must be in [0, 1)")
         require(0.0 <= self.obstacle_probability <= 1.0, "randomize.obstacle_probability", self.obstacle_probability, "must be in [0, 1]")
         require(0.0 <= self.noise_max <= 1.0, "randomize.noise_max", self.noise_max, "must be in [0, 1]")
+        require(0.0 <= self.dem_probability <= 1.0, "randomize.dem_probability", self.dem_probability, "must be in [0, 1]")
         require(self.azimuth_step_min_deg >= 0.0, "randomize.azimuth_step_min_deg", self.azimuth_step_min_deg, "must be >= 0")
 
 
@@ -93,4 +98,6 @@ def randomize(sim, batch: int, seed: int):
         out.data.noise = float(rng.uniform(0.0, r.noise_max))
     amplitudes = log_uniform(rng, r.amplitude_min, r.amplitude_max, batch)
     feature_sizes = log_uniform(rng, r.feature_size_min, r.feature_size_max, batch)
+    if r.dem_probability > 0 and rng.uniform() < r.dem_probability:  # drawn last: other streams unchanged
+        out.terrain.source = "dem"
     return out, amplitudes, feature_sizes

@@ -99,7 +99,21 @@ def validate_run(cfg: RunConfig) -> RunConfig:
     if cfg.model.name == "paper" and cfg.data.map_size != 121:
         raise ValueError(f"data.map_size={cfg.data.map_size}: model=paper is Table 2's net for 121x121 maps; use model=unet for other sizes")
     _check_obstacle_room(cfg)
+    _check_dem_mix(cfg)
     return cfg
+
+
+def _check_dem_mix(cfg: RunConfig) -> None:
+    """A randomised fBm world that mixes in real ground needs rasters that load."""
+    mix = cfg.data.randomize
+    if not (mix.enabled and mix.dem_probability > 0) or cfg.terrain.source == "dem":
+        return
+    if not cfg.terrain.dem.files:
+        raise ValueError(f"data.randomize.dem_probability={mix.dem_probability}: mixes in real ground: name the rasters in terrain.dem.files")
+    try:
+        cfg.terrain.dem.validate("dem", load=True)
+    except ValueError as err:
+        raise ValueError(f"terrain.{err}") from None
 
 
 def _check_obstacle_room(cfg: RunConfig) -> None:

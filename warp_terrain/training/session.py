@@ -206,7 +206,7 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
         for g in opt.param_groups:
             g["lr"] = run.base_lrs[id(opt)] * factor
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items() if k != "step"}
-    weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor)
+    weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor, cfg.model.height_reference)
     model.set_input(model_input(batch["scan"], batch["mask"], cfg.model.in_channels), batch["target"], weight)
     model.optimize_parameters()
     t2 = time.perf_counter()

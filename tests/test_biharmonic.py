@@ -1,0 +1,229 @@
+"""The thin-plate base fill, the observed-cell plane and the generator built on them: known answers.
+
+The reference is the same energy solved exactly (scipy's sparse direct solver on the assembled
+matrix), so the multigrid-CG in ``models/biharmonic.py`` is checked against what it claims to
+solve, and skimage's ``inpaint_biharmonic`` (the classical baseline) against what it is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+import torch
+from skimage.restoration import inpaint_biharmonic
+
+from warp_terrain.models.biharmonic import biharmonic_fill, pyramid_levels
+from warp_terrain.models.config import ModelConfig
+from warp_terrain.models.fill import FillResidualGenerator, observed_plane, push_pull_fill
+from warp_terrain.models.pix2pix import build_generator
+
+
+def grid_laplacian(h: int, w: int) -> sp.csr_matrix:
+    """G^T G of the grid graph (4-neighbour differences): minus the replicate-edge Laplacian."""
+    idx = np.arange(h * w).reshape(h, w)
+    rows, cols, vals = [], [], []
+    for a, b in ((idx[:, :-1], idx[:, 1:]), (idx[:-1, :], idx[1:, :])):
+        a, b = a.ravel(), b.ravel()
+        n = np.arange(len(a)) + len(rows) // 2
+        rows += [*n, *n]
+        cols += [*a, *b]
+        vals += [-1.0] * len(a) + [1.0] * len(a)
+    g = sp.csr_matrix((vals, (rows, cols)), shape=(len(rows) // 2, h * w))
+    return (g.T @ g).tocsr()
+
+
+def exact_fill(z: np.ndarray, known: np.ndarray, tension: float) -> np.ndarray:
+    n = grid_laplacian(*z.shape)
+    a = ((1 - tension) * (n @ n) + tension * n).tocsr()
+    k, f = known.ravel(), ~known.ravel()
+    zz = np.where(known, z, 0.0).ravel().astype(np.float64)
+    out = zz.copy()
+    out[f] = sla.spsolve(a[f][:, f].tocsc(), -a[f][:, k] @ zz[k])
+    return out.reshape(z.shape)
+
+
+def rings(size: int, seed: int, share: float = 0.08) -> np.ndarray:
+    """A sparse mask like a scan's: a few rings around the centre plus scattered cells."""
+    rng = np.random.default_rng(seed)
+    r = np.hypot(*np.mgrid[:size, :size] - (size - 1) / 2)
+    mask = np.isin(np.round(r).astype(int), [3, 6, 10, 15, 22]) & (rng.random((size, size)) < 0.7)
+    return mask | (rng.random((size, size)) < share)
+
+
+def smooth_field(size: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[:size, :size] / size
+    return sum(rng.normal() * np.sin(2 * np.pi * (k * x + l * y) + rng.uniform(0, 6)) / (k + l + 1) for k in range(3) for l in range(3))
+
+
+def t(a) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(a, dtype=np.float32))[None, None]
+
+
+@pytest.mark.parametrize("tension", [0.0, 0.1])
+def test_fill_solves_the_thin_plate_it_states(tension):
+    z, known = smooth_field(48, 1), rings(48, 2)
+    exact = exact_fill(z, known, tension)
+    out = biharmonic_fill(t(z * known), t(known), tension=tension, steps=(128, 128, 128, 128))[0, 0].numpy()
+    free = ~known
+    assert np.abs(out[free] - exact[free]).max() < 4e-3 * np.abs(z).max()
+    np.testing.assert_array_equal(out[known], z[known].astype(np.float32))
+
+
+def test_without_tension_it_is_skimages_biharmonic_inpainting():
+    """skimage's 13-point stencil, reflected at the border, is ``(G^T G)^2``: the same surface,
+    holes at the edges included."""
+    z, known = smooth_field(40, 3), rings(40, 4, share=0.05)
+    sk = inpaint_biharmonic(np.where(known, z, 0.0), ~known)
+    agree = np.abs(exact_fill(z, known, 0.0) - sk) < 1e-6 * np.abs(z).max()
+    # skimage solves each hole on its own and fills a hole cut off by the edge from its bounding
+    # box; that one small hole (9 cells at the top edge here) is the only difference
+    assert agree.sum() >= agree.size - 9 and agree[4:-4, 4:-4].all()
+
+
+def framed(size: int, seed: int) -> np.ndarray:
+    """Sparse rings inside two fully observed border rows and columns: every free cell then lies
+    where the thin plate's stencil is the plain biharmonic one, whose solutions include planes."""
+    known = rings(size, seed, share=0.01)
+    known[:2], known[-2:], known[:, :2], known[:, -2:] = True, True, True, True
+    return known
+
+
+def test_a_sparse_plane_comes_back_and_the_pyramid_fill_cannot():
+    r, c = np.mgrid[:121, :121].astype(np.float64)
+    plane = 0.03 * r - 0.05 * c + 1.5  # 9.6 m of relief across the map
+    known = framed(121, 4)
+    def rms(fill):
+        return float(np.sqrt(np.mean((fill(t(plane * known), t(known))[0, 0].numpy() - plane) ** 2)))
+
+    # the exact thin plate is the plane; the default step counts stop short of it by 0.3 % of the
+    # relief (rms), the pyramid average bends it seven times as much
+    assert rms(biharmonic_fill) < 0.03
+    assert rms(lambda z, m: biharmonic_fill(z, m, steps=(64, 64, 64, 64, 256))) < 0.015
+    assert rms(push_pull_fill) > 0.2
+
+
+def test_constants_stay_constant_and_an_empty_map_is_zero():
+    known = t(rings(64, 5))
+    np.testing.assert_allclose(biharmonic_fill(-2.5 * known, known).numpy(), -2.5, rtol=0, atol=1e-5)
+    assert torch.equal(biharmonic_fill(torch.ones(1, 1, 64, 64), torch.zeros(1, 1, 64, 64)), torch.zeros(1, 1, 64, 64))
+
+
+def test_fill_turns_with_the_map():
+    """On a 2^k grid the pyramid is symmetric, so flips and transposes commute with the fill."""
+    z, known = t(smooth_field(64, 6)), t(rings(64, 7))
+    out = biharmonic_fill(z * known, known)
+    for op in (lambda a: a.flip(-1), lambda a: a.flip(-2), lambda a: a.transpose(-1, -2)):
+        torch.testing.assert_close(biharmonic_fill(op(z * known), op(known)), op(out), rtol=0, atol=2e-5)
+
+
+def test_batched_fill_is_per_map():
+    z = torch.stack([t(smooth_field(48, s))[0] for s in (8, 9)])
+    known = torch.stack([t(rings(48, s))[0] for s in (10, 11)])
+    both = biharmonic_fill(z * known, known)
+    for i in range(2):
+        torch.testing.assert_close(biharmonic_fill(z[i:i + 1] * known[i:i + 1], known[i:i + 1]), both[i:i + 1], rtol=0, atol=1e-6)
+
+
+def test_pyramid_levels_and_bad_arguments():
+    assert [pyramid_levels(s) for s in (8, 9, 16, 17, 121)] == [1, 2, 2, 3, 5]
+    with pytest.raises(ValueError, match="tension"):
+        biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), tension=1.0)
+
+
+def test_observed_plane_is_the_least_squares_plane():
+    rng = np.random.default_rng(12)
+    z = rng.normal(size=(30, 40))
+    known = rng.random((30, 40)) < 0.3
+    r, c = np.mgrid[:30, :40]
+    basis = np.column_stack([r[known], c[known], np.ones(known.sum())])
+    coef, *_ = np.linalg.lstsq(basis, z[known], rcond=None)
+    expected = coef[0] * r + coef[1] * c + coef[2]
+    np.testing.assert_allclose(observed_plane(t(z), t(known))[0, 0].numpy(), expected, rtol=0, atol=1e-4)
+
+
+def test_observed_plane_falls_back_to_the_mean_on_a_line_or_one_cell():
+    z = torch.arange(100.0).view(1, 1, 10, 10)
+    line = torch.zeros(1, 1, 10, 10)
+    line[..., 4, :] = 1.0  # one row: the slope across it is unknown
+    np.testing.assert_allclose(observed_plane(z, line).numpy(), z[..., 4, :].mean().item(), atol=1e-4)
+    one = torch.zeros(1, 1, 10, 10)
+    one[..., 2, 3] = 1.0
+    np.testing.assert_allclose(observed_plane(z, one).numpy(), 23.0, atol=1e-4)
+
+
+def model_config(**overrides) -> ModelConfig:
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3, height_scale_min=0.05,
+                      base_fill="biharmonic", height_reference="plane", start_from_fill=True, uncertainty=True)
+    for key, value in overrides.items():
+        setattr(cfg, key, value)
+    return cfg.validate()
+
+
+def condition(seed: int = 13, size: int = 40) -> torch.Tensor:
+    z, known = smooth_field(size, seed), framed(size, seed + 1)
+    r, c = np.mgrid[:size, :size]
+    z = z + 0.4 * r  # a steep tilt: 16 m across the map
+    return torch.cat([t(z * known), t(known)], dim=1)
+
+
+def test_untrained_model_starting_from_the_fill_is_the_fill():
+    x = condition()
+    out = build_generator(model_config()).eval()(x)
+    torch.testing.assert_close(out[:, :1], biharmonic_fill(x[:, :1], x[:, 1:]), rtol=0, atol=0)
+
+
+def test_plane_reference_makes_the_net_blind_to_tilt():
+    """With the plane reference the net sees the same input when a plane is added to the scan
+    (on a framed map the thin plate keeps planes), so its correction and its uncertainty do not
+    change; with the mean reference they do."""
+    torch.manual_seed(0)
+    x = condition()
+    r, c = torch.meshgrid(torch.arange(40.0), torch.arange(40.0), indexing="ij")
+    tilt = (0.7 * r - 0.3 * c + 5.0)[None, None]  # 39 m across the map
+    tilted = torch.cat([x[:, :1] + tilt * x[:, 1:], x[:, 1:]], dim=1)
+
+    def correction(g, cond):
+        with torch.no_grad():
+            out = g(cond)
+        return out[:, :1] - g.base_fill(cond[:, :1], cond[:, 1:]), out[:, 1:]
+
+    g = build_generator(model_config(start_from_fill=False, observed_bound=0.0)).eval()
+    (level, level_sigma), (steep, steep_sigma) = correction(g, x), correction(g, tilted)
+    assert level.abs().max() > 0.01  # the net does correct
+    torch.testing.assert_close(steep, level, rtol=0, atol=1e-3)
+    torch.testing.assert_close(steep_sigma, level_sigma, rtol=0, atol=3e-3)
+    mean_model = build_generator(model_config(start_from_fill=False, observed_bound=0.0, height_reference="mean")).eval()
+    mean_model.load_state_dict(g.state_dict())
+    assert (correction(mean_model, tilted)[0] - correction(mean_model, x)[0]).abs().max() > 0.05
+
+
+def test_observed_cells_move_at_most_the_bound():
+    torch.manual_seed(1)
+    g = FillResidualGenerator(torch.nn.Conv2d(2, 1, 1), base="biharmonic", reference="plane", observed_bound=0.1)
+    with torch.no_grad():
+        g.net.weight.fill_(50.0)  # a wild correction
+        x = condition()
+        out = g(x)
+    observed = x[:, 1:] > 0
+    moved = (out - x[:, :1]).abs()
+    assert moved[observed].max() <= 0.1 + 1e-6 and moved[~observed].max() > 1.0
+
+
+def test_generator_exports_to_onnx_and_matches(tmp_path):
+    onnxruntime = pytest.importorskip("onnxruntime")
+    g = build_generator(model_config(start_from_fill=False)).eval()
+    x = condition(size=48)
+    path = tmp_path / "g.onnx"
+    torch.onnx.export(g, (x,), str(path), input_names=["condition"], output_names=["out"], dynamo=False)
+    got = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"condition": x.numpy()})[0]
+    with torch.no_grad():
+        np.testing.assert_allclose(got, g(x).numpy(), rtol=0, atol=1e-3)
+
+
+def test_config_names_bad_fill_and_reference():
+    for key, value in (("base_fill", "kriging"), ("height_reference", "median"), ("observed_bound", -1.0)):
+        with pytest.raises(ValueError, match=key):
+            model_config(**{key: value})

@@ -1,0 +1,116 @@
+"""Thin-plate (biharmonic) inpainting as torch ops: a classical fill the network can start from.
+
+``biharmonic_fill(height, mask)`` returns the surface ``u`` that keeps every observed cell and
+minimises, over the unobserved ones,
+
+    E(u) = (1 - tension) * sum |L u|^2 + tension * sum |grad u|^2
+
+where ``L`` is the 5-point Laplacian on the interior cells (a cell with all four neighbours)
+and ``grad`` the forward differences (grid units; h = 1). ``tension = 0`` is the thin plate:
+its minimiser solves the biharmonic equation ``L^T L u = 0`` in the holes, like
+``skimage.restoration.inpaint_biharmonic``, and with the Laplacian taken only where it is
+defined the map's border is a free edge, so a slope runs on past the last observation instead
+of flattening (a plane is reproduced exactly, at any hole shape). A little tension (GMT's
+``surface -T``) damps the overshoot of the thin plate next to steps.
+
+The linear system ``A_FF u_F = -A_FK h_K`` (F: free cells, K: observed; ``A = (1-t) L^T L + t
+G^T G``, symmetric positive definite once one cell is observed) is solved matrix-free by
+conjugate gradients, cascadic multigrid style: heights and masks are averaged down a pyramid
+(as the push-pull fill), the coarsest level is solved first, and each finer level starts from
+the bilinear upsampling of the level above and runs a fixed number of CG steps. Every op is a
+convolution, a pooling, an interpolation or an elementwise op with a fixed count of steps: it is
+batched on the device, differentiable (not needed: it has no parameters) and exports to ONNX
+(the loops unroll). A map with no observed cell comes back as zeros.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+#: CG steps per pyramid level, coarsest first; the finest level gets the last entry (a map of
+#: 121 cells has five levels: 8, 16, 31, 61, 121).
+DEFAULT_STEPS = (64, 48, 32, 24, 24)
+#: Coarsest level's size (cells along the longer side) of the pyramid.
+COARSEST = 8
+
+
+def _laplacian(u: torch.Tensor) -> torch.Tensor:
+    """The 5-point Laplacian with replicated edges: the graph Laplacian of the grid (Neumann)."""
+    kernel = torch.tensor([[0.0, 1.0, 0.0], [1.0, -4.0, 1.0], [0.0, 1.0, 0.0]], dtype=u.dtype, device=u.device)
+    return F.conv2d(F.pad(u, (1, 1, 1, 1), mode="replicate"), kernel.view(1, 1, 3, 3))
+
+
+def _operator(u: torch.Tensor, tension: float) -> torch.Tensor:
+    """``A u = (1 - t) L L u - t L u``: ``L`` is symmetric, so this is the gradient of E / 2."""
+    lap = _laplacian(u)
+    out = _laplacian(lap)
+    return out if tension == 0 else (1.0 - tension) * out - tension * lap
+
+
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(dim=(1, 2, 3), keepdim=True)
+
+
+def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float) -> torch.Tensor:
+    """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``."""
+    r = -free * _operator(u, tension)
+    p = r
+    rr = _dot(r, r)
+    for _ in range(steps):
+        ap = free * _operator(p, tension)
+        pap = _dot(p, ap)
+        alpha = torch.where(pap > 0, rr / pap.clamp_min(1e-30), torch.zeros_like(pap))
+        u = u + alpha * p
+        r = r - alpha * ap
+        rr_new = _dot(r, r)
+        beta = torch.where(rr > 0, rr_new / rr.clamp_min(1e-30), torch.zeros_like(rr))
+        p = r + beta * p
+        rr = rr_new
+    return u
+
+
+def _pyramid(height: torch.Tensor, mask: torch.Tensor, levels: int):
+    """``[(heights, mask), ...]`` finest first: each level the weighted 2x2 mean of the one below;
+    a coarse cell is observed when any of its fine cells is."""
+    out = [(height * mask, mask)]
+    value, weight = height * mask, mask
+    for _ in range(levels - 1):
+        value = F.avg_pool2d(value, 2, ceil_mode=True)
+        weight = F.avg_pool2d(weight, 2, ceil_mode=True)
+        known = (weight > 0).to(height.dtype)
+        out.append((known * value / weight.clamp_min(1e-12), known))
+    return out
+
+
+def pyramid_levels(size: int, coarsest: int = COARSEST) -> int:
+    """Levels of a pyramid over ``size`` cells halving (rounding up) down to ``<= coarsest``."""
+    levels = 1
+    while size > coarsest:
+        size = -(-size // 2)
+        levels += 1
+    return levels
+
+
+def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float = 0.0, steps: tuple[int, ...] = DEFAULT_STEPS) -> torch.Tensor:
+    """(B, 1, H, W) heights (m) and 0/1 mask -> heights with the unobserved cells filled by the
+    thin plate under ``tension`` (in [0, 1)); observed cells are returned exactly."""
+    if not 0.0 <= tension < 1.0:
+        raise ValueError(f"tension must be in [0, 1), got {tension}")
+    if not steps:
+        raise ValueError("steps must name at least one CG step count per level")
+    mask = mask.to(height.dtype)
+    levels = _pyramid(height, mask, pyramid_levels(max(height.shape[-2:])))
+    u = None
+    for depth, (value, known) in enumerate(reversed(levels)):
+        level = len(levels) - 1 - depth  # 0 = finest
+        if u is None:  # coarsest: start from the mean observed height
+            mean = _dot(value, known) / _dot(known, known).clamp_min(1.0)  # known is 0/1: sum(value)/count
+            u = known * value + (1.0 - known) * mean
+        else:
+            up = F.interpolate(u, scale_factor=2.0, mode="bilinear", align_corners=False)
+            up = up[..., : value.shape[-2], : value.shape[-1]]
+            u = known * value + (1.0 - known) * up
+        count = steps[min(depth, len(steps) - 1)] if level > 0 else steps[-1]
+        u = conjugate_gradient(u, 1.0 - known, count, tension)
+    return u

@@ -7,6 +7,7 @@ source checkout and from an installed wheel, in any folder.
 
 from __future__ import annotations
 
+import logging
 import shutil
 import sys
 from pathlib import Path
@@ -21,6 +22,7 @@ from ..training import train
 from ..training.report import print_summary
 
 register_configs()
+log = logging.getLogger("warp_terrain.training")
 
 #: What Hydra writes into a run folder before the run starts.
 HYDRA_FILES = {".hydra", "train.log", "main.log"}
@@ -40,7 +42,10 @@ def main(cfg: DictConfig) -> float:
         print(f"error: {err}", file=sys.stderr)
         _remove_if_only_hydra(Path(HydraConfig.get().runtime.output_dir))
         sys.exit(2)
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    hydra_cfg = HydraConfig.get()
+    run_dir = Path(hydra_cfg.runtime.output_dir)
+    composed = f"; composed config: {run_dir / hydra_cfg.output_subdir / 'config.yaml'}" if hydra_cfg.output_subdir else ""
+    log.info("overrides: %s%s", " ".join(hydra_cfg.overrides.task) or "none", composed)
     try:
         summary = train(run, run_dir, callbacks=[PaperFigures()])
     except ValueError as err:  # refused before any work (memory, device, resume): one line, no folder left

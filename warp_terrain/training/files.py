@@ -1,13 +1,10 @@
-"""The run folder's text files and PNG image, each written atomically (``core.atomic``)."""
+"""The run folder's text files and PNG figure, each written atomically (``core.atomic``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib.image as mpimg
-import numpy as np
-
-from ..core.atomic import atomic_open, atomic_path
+from ..core.atomic import atomic_open
 
 
 def write_text(path: Path, text: str) -> None:
@@ -16,7 +13,7 @@ def write_text(path: Path, text: str) -> None:
         f.write(text)
 
 
-def save_png(grid: np.ndarray, path: Path) -> None:
-    """Save a ``(3, H, W)`` float image in [0, 1] (``visuals.map_grid``) as a PNG at ``path``."""
-    with atomic_path(path) as tmp:
-        mpimg.imsave(tmp, grid.transpose(1, 2, 0))
+def save_figure_png(fig, path: Path, dpi: int = 80) -> None:
+    """Save the matplotlib figure ``fig`` (``visuals.validation_figure``) as a PNG at ``path``, atomically."""
+    with atomic_open(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=dpi)

@@ -6,11 +6,18 @@ checkpoint if asked), the fixed validation set and its nearest-neighbour baselin
 TensorBoard writer. The phases read it and keep in it what changes during the run (the best
 and latest validation scores, the latest validation prediction, the throughput counters).
 Rank 0 alone validates, logs and writes files; on other ranks those phases do nothing.
+
+Rank 0 also tells the Python logger ``warp_terrain.training`` (INFO) what happens: the config in
+one line, the device, a resume, each validation (step, RMSE on unobserved cells, the best so far,
+the nearest-neighbour fill's), each checkpoint written and the final summary. ``train.py``
+sends it to ``RUN_DIR/train.log`` (``conf/hydra/job_logging/run_log.yaml``); called as a
+library, it goes wherever the caller's logging sends it (nowhere by default).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import time
@@ -39,8 +46,10 @@ from ..sim.terrain import scratch_bytes
 from .checkpoint import BEST, LATEST, remove_stale_temporaries, resolve_resume, rng_state, set_rng_state
 from .config import RunConfig
 from .distributed import NullWriter, Ranks, close_ranks, init_ranks
-from .files import save_png, write_text
-from .visuals import map_grid
+from .files import save_figure_png, write_text
+from .visuals import map_grid, validation_figure
+
+logger = logging.getLogger("warp_terrain.training")
 
 
 def lr_factor(step: int, steps: int, decay_from: float) -> float:
@@ -132,18 +141,30 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
     for d in (run_dir / "checkpoints", run_dir / "images"):
         d.mkdir(parents=True, exist_ok=True)
     _seed(cfg, device)
+    if ranks.main:
+        logger.info("run folder %s; config (in full: run_config.yaml): %s", run_dir, describe_config(cfg))
+        logger.info("device %s%s; %d torch threads", _device_name(device), f"; {ranks.world} ranks" if ranks.distributed else "",
+                 torch.get_num_threads())
 
     model = build_model(cfg.model).to(device)
     if ranks.distributed:
         model.distribute([ranks.local_rank] if device.startswith("cuda") else None)
     start, best = _resume(model, cfg, run_dir, ranks)
     if ranks.main:
+        if start or math.isfinite(best):
+            logger.info("resumed from %s at step %d of %d (best validation RMSE so far %.6f m)",
+                     resolve_resume(tc.resume, run_dir), start, tc.steps, best)
+        else:
+            logger.info("training from step 0 of %d (fresh weights)", tc.steps)
         write_text(run_dir / "run_config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
 
     val = validation_set(sim, tc.val_size if ranks.main else 1, device)
     unobserved = val["mask"] == 0
     nn_rmse = masked_rmse(nearest_fill(val["scan"], val["mask"]), val["target"], unobserved)
     val_condition = model_input(val["scan"], val["mask"], cfg.model.in_channels)
+    if ranks.main:
+        logger.info("validation set: %d maps, %.1f %% of cells observed; nearest-neighbour fill RMSE on unobserved cells %.6f m",
+                 val["mask"].shape[0], 100.0 * float((~unobserved).float().mean()), nn_rmse)
 
     writer = SummaryWriter(log_dir=str(run_dir / "tensorboard"), purge_step=start if start else None) if ranks.main else NullWriter()
     return TrainingRun(
@@ -163,6 +184,22 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
         base_lrs={id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d},
         relief_floor=cfg.model.height_scale_min if cfg.model.relief_relative_loss else 0.0,
     )
+
+
+def describe_config(cfg: RunConfig) -> str:
+    """The run config in one line: the choices that tell runs apart."""
+    t, m, d, tc = cfg.terrain, cfg.model, cfg.data, cfg.train
+    return (f"terrain={t.name} lidar={cfg.lidar.name} model={m.name} (in_channels={m.in_channels}, residual={m.residual}, "
+            f"uncertainty={m.uncertainty}) map={d.map_size}x{d.map_size} cells of {d.map_cell:g} m noise={d.noise:g} "
+            f"steps={tc.steps} batch_size={tc.batch_size} val_size={tc.val_size} val_every={tc.val_every} "
+            f"checkpoint_every={tc.checkpoint_every} seed={tc.seed} resume={tc.resume} dataset={tc.dataset or 'live stream'}")
+
+
+def _device_name(device: str) -> str:
+    """``device`` with the GPU's name when it is one."""
+    if device.startswith("cuda") and torch.cuda.is_available():
+        return f"{device} ({torch.cuda.get_device_name(torch.device(device))})"
+    return device
 
 
 def _seed(cfg: RunConfig, device: str) -> None:
@@ -254,6 +291,8 @@ def validate(run: TrainingRun, step: int) -> None:
     writer.add_scalar("val/rmse_all", masked_rmse(prediction, target, torch.ones_like(unobserved)), step)
     writer.add_scalar("val/nearest_fill_rmse_unobserved", run.nn_rmse, step)
     run.rmse, run.prediction = rmse, prediction
+    logger.info("step %d/%d: validation RMSE on unobserved cells %.6f m (best %.6f m); nearest-neighbour fill %.6f m",
+             step, run.cfg.train.steps, rmse, min(rmse, run.best), run.nn_rmse)
 
 
 def keep_best(run: TrainingRun, step: int) -> None:
@@ -283,13 +322,15 @@ def save(run: TrainingRun, name: str, step: int) -> None:
         {"model": run.model.state_dict(), "step": step, "best": run.best, "rng": rng_state(), "config": OmegaConf.to_container(OmegaConf.structured(run.cfg))},
         run.ckpt_dir / name,
     )
+    why = f" (new best validation RMSE {run.best:.6f} m)" if name == BEST else ""
+    logger.info("step %d: wrote checkpoint %s%s", step, run.ckpt_dir / name, why)
 
 
 def finish(run: TrainingRun, callbacks: Sequence, started: float) -> dict:
     """End the run and return its summary (``started``: ``time.perf_counter()`` before the first step).
 
     A run that had no step left to take scores the loaded model first. Rank 0 then runs the
-    ``callbacks``' ``on_finish``, saves ``images/validation.png``, logs the hyperparameters
+    ``callbacks``' ``on_finish``, saves ``images/validation.png`` (``visuals.validation_figure``), logs the hyperparameters
     with the final scores, closes the writer and writes ``summary.json``; another rank writes
     only ``summary_rank{rank}.json`` (its first batch seeds). Every rank leaves the process group.
     """
@@ -304,7 +345,8 @@ def finish(run: TrainingRun, callbacks: Sequence, started: float) -> dict:
     for callback in callbacks:
         callback.on_finish(run.writer, run.model, run.cfg, run.device, steps)
     image_path = run.image_dir / "validation.png"
-    save_png(_grid(run), image_path)
+    val = run.val
+    save_figure_png(validation_figure(val["scan"], val["mask"], run.prediction, val["target"], run.cfg.data.map_cell, step=steps), image_path)
     summary = {
         "run_dir": str(run.run_dir),
         "steps": steps,
@@ -322,6 +364,9 @@ def finish(run: TrainingRun, callbacks: Sequence, started: float) -> dict:
     _log_hparams(run)
     run.writer.close()
     write_text(run.run_dir / "summary.json", json.dumps(summary, indent=2))
+    logger.info("finished %d steps in %.1f min: validation RMSE on unobserved cells %.6f m (best %.6f m); nearest-neighbour fill %.6f m",
+             steps, summary["wall_s"] / 60.0, summary["val_rmse_unobserved"], summary["best_val_rmse_unobserved"], run.nn_rmse)
+    logger.info("wrote %s, %s and the TensorBoard log %s", image_path, run.run_dir / "summary.json", summary["tensorboard"])
     close_ranks(run.ranks)
     return summary
 

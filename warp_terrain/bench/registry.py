@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 
 from ..sim import resolve_device
 from .harness import environment
@@ -36,16 +36,18 @@ def parse_only(only) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def run_benchmarks(device=None, only=None, quick: bool = False, progress: Callable[[str], None] | None = None) -> dict:
+def run_benchmarks(device=None, only=None, quick: bool = False, progress: Callable[[str], None] | None = None,
+                   track: Callable[[Sequence, str], Iterable] | None = None) -> dict:
     """Run the selected benchmarks (all by default) on ``device``; a JSON-ready dict.
 
     ``only``: None, ``"noise,rays,stream"`` or a list of those names. ``quick``: tiny workloads
-    and fewer repeats (a smoke test, not a measurement). ``progress`` receives one line per step.
+    and fewer repeats (a smoke test, not a measurement). ``progress`` receives one line per step;
+    ``track(names, "bench")``, if given, yields the workloads' names while showing progress.
     """
     names = parse_only(only)
     device = resolve_device(device)
     results = {}
-    for name in names:
+    for name in names if track is None else track(names, "bench"):
         if progress:
             progress(f"bench {name} on {device}{' (quick)' if quick else ''} ...")
         t0 = time.perf_counter()

@@ -7,6 +7,7 @@ import json
 import sys
 
 from .args import _add_device
+from .progress import _add_quiet, reporters
 
 BENCH_NAMES = ("noise", "rays", "stream", "loader", "train", "infer")
 
@@ -30,16 +31,15 @@ def add_bench(sub) -> None:
     p.add_argument("--only", type=_only, default=None, metavar="NAMES",
                    help=f"comma-separated subset of {','.join(BENCH_NAMES)} (default: all)")
     p.add_argument("--quick", action="store_true", help="tiny workloads and fewer repeats: a smoke test, not a measurement")
+    _add_quiet(p)
     p.set_defaults(func=cmd_bench)
 
 
 def cmd_bench(args) -> int:
     from ..bench import format_table, run_benchmarks
 
-    def progress(line: str) -> None:
-        print(line, file=sys.stderr, flush=True)
-
-    report = run_benchmarks(device=args.device, only=args.only, quick=args.quick, progress=progress)
+    progress, track = reporters(args.quiet, "workload")
+    report = run_benchmarks(device=args.device, only=args.only, quick=args.quick, progress=progress, track=track)
     if args.json:
         json.dump(report, sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -6,6 +6,7 @@ import json
 import sys
 
 from .args import _add_device
+from .progress import _add_quiet, reporters
 
 
 # ------------------------------------------------------------------------------ generate
@@ -30,6 +31,7 @@ def add_generate(sub) -> None:
                    help="make shards in N processes on a CPU (a Warp CPU launch uses one core); same files (default: 0, in-process)")
     p.add_argument("--overwrite", action="store_true", help="replace the dataset in a non-empty folder")
     p.add_argument("--json", action="store_true", help="print the manifest as JSON on stdout")
+    _add_quiet(p)
     _add_device(p)
     p.set_defaults(func=cmd_generate)
 
@@ -74,11 +76,9 @@ def cmd_generate(args) -> int:
 
     sim = _generate_config(args)
 
-    def progress(line: str) -> None:
-        print(line, file=sys.stderr, flush=True)
-
+    progress, track = reporters(args.quiet, "shard")
     manifest = write_dataset(args.out, args.count, sim, seed=args.seed, shard_size=args.shard_size, overwrite=args.overwrite,
-                             with_points=args.with_points, device=args.device, progress=progress, workers=args.workers)
+                             with_points=args.with_points, device=args.device, progress=progress, workers=args.workers, track=track)
     if args.json:
         json.dump(manifest, sys.stdout, indent=2)
         sys.stdout.write("\n")

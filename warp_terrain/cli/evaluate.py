@@ -7,6 +7,7 @@ import sys
 
 from ..core.atomic import atomic_open
 from .args import _add_device, _add_tta, _baseline_names, _noise_levels, _positive_int
+from .progress import _add_quiet, reporters
 
 
 def add_evaluate(sub) -> None:
@@ -38,6 +39,7 @@ def add_evaluate(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the results as JSON on stdout (progress goes to stderr)")
     p.add_argument("--markdown", default=None, metavar="FILE", help="also write the tables as Markdown to FILE")
     p.add_argument("--figures", default=None, metavar="DIR", help="also write one PNG per setting into DIR (created if missing)")
+    _add_quiet(p)
     _add_device(p)
     p.set_defaults(func=cmd_evaluate)
 
@@ -49,9 +51,7 @@ def cmd_evaluate(args) -> int:
     from ..evaluation.baselines import BASELINES
     from ..inference.predictor import load_predictor
 
-    def progress(line: str) -> None:
-        print(line, file=sys.stderr, flush=True)
-
+    progress, track = reporters(args.quiet, "set")
     size = args.size if args.size is not None else (QUICK_SIZE if args.quick else DEFAULT_SIZE)
     names = list(BASELINES) if args.baselines is None else args.baselines
     predictors = {n: BASELINES[n] for n in names}
@@ -72,7 +72,7 @@ def cmd_evaluate(args) -> int:
         from ..evaluation.real import evaluate_real, real_markdown
 
         results = evaluate_real(predictors, data_dir=args.real_data, size=size if args.size or args.quick else 32,
-                                repeats=args.repeats, device=args.device or "cpu", progress=progress)
+                                repeats=args.repeats, device=args.device or "cpu", progress=progress, track=track)
         if model_info is not None:
             results["model"] = model_info
         text = real_markdown(results)
@@ -84,7 +84,7 @@ def cmd_evaluate(args) -> int:
     if args.robustness:
         from ..evaluation.robustness import evaluate_robustness, robustness_markdown
 
-        results = evaluate_robustness(predictors, size=size if args.size or args.quick else 32, device=args.device or "cpu", progress=progress)
+        results = evaluate_robustness(predictors, size=size if args.size or args.quick else 32, device=args.device or "cpu", progress=progress, track=track)
         text = robustness_markdown(results)
         if args.markdown is not None:
             with atomic_open(Path(args.markdown), "w") as f:
@@ -97,7 +97,7 @@ def cmd_evaluate(args) -> int:
 
         on_set = figure_writer(args.figures, progress=progress)
     results = evaluate(predictors, settings=args.settings, noise=args.noise, size=size, lidar=args.lidar,
-                       device=args.device, on_set=on_set, progress=progress)
+                       device=args.device, on_set=on_set, progress=progress, track=track)
     if model_info is not None:
         results["model"] = model_info
     if args.markdown is not None:

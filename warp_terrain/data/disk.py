@@ -129,14 +129,16 @@ def _write_shard(out: Path, name: str, data: bytes) -> None:
 
 
 def write_dataset(out, count: int, sim=None, seed: int = 0, shard_size: int = 64, overwrite: bool = False,
-                  with_points: bool = False, device=None, progress=None, workers: int = 0) -> dict:
+                  with_points: bool = False, device=None, progress=None, workers: int = 0, track=None) -> dict:
     """Generate ``count`` pairs from ``sim`` (a ``SimConfig`` or anything ``as_sim_config`` takes)
     into the folder ``out`` as shards of ``shard_size``; returns the manifest (also written as
     ``out/manifest.json``).
 
     ``out`` is created if missing; a non-empty folder is refused unless ``overwrite`` (then its
     ``manifest.json`` and ``shard-*.npz`` are removed first; other files are left alone).
-    ``progress``: optional ``callable(str)`` told about each shard. ``workers`` > 0 makes the
+    ``progress``: optional ``callable(str)`` told about each shard; ``track``: optional
+    ``track(shards, "generate")`` that yields the shard plan in order while showing progress (the
+    CLI passes a tqdm bar on stderr). ``workers`` > 0 makes the
     shards in that many processes (CPU only: a Warp CPU launch runs on one thread); the files
     are the same byte for byte.
     """
@@ -167,7 +169,7 @@ def write_dataset(out, count: int, sim=None, seed: int = 0, shard_size: int = 64
         made = (_shard(*job) for job in jobs)
     shards = []
     try:
-        for (k, first, n, s_seed), (data, shapes) in zip(plan, made):
+        for (k, first, n, s_seed), (data, shapes) in zip(plan if track is None else track(plan, "generate"), made):
             name = shard_name(k)
             _write_shard(out, name, data)
             shards.append({

@@ -200,10 +200,14 @@ def _predict(f, scan: torch.Tensor, mask: torch.Tensor, device: str) -> torch.Te
 
 
 def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int = 32, repeats: int = 3, device=None,
-                  synthetic: bool = True, progress=None) -> dict:
+                  synthetic: bool = True, progress=None, track=None) -> dict:
     """Score every predictor (``name -> f(scan, mask)``; add the classical fills yourself, e.g.
-    ``evaluation.BASELINES``) on every family; returns plain dicts (``real_markdown`` renders them)."""
+    ``evaluation.BASELINES``) on every family; returns plain dicts (``real_markdown`` renders them).
+    ``progress`` receives one line per score; ``track(items, what)``, if given, yields the real
+    families (``what="real data"``) and then the synthetic sets (``"synthetic edges"``) while
+    showing progress."""
     say = progress or (lambda _line: None)
+    along = track or (lambda items, _what: items)
     device = resolve_device(device)
     folder = real_data_dir(data_dir)
     results = {"data_dir": str(folder), "size": size, "repeats": repeats, "hide_share": HIDE_SHARE, "methods": list(predictors),
@@ -217,7 +221,7 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
             say(f"{entry['family']:<40} {name:<12} {key} {entry['metrics'][name][key]:.4f} m ({time.perf_counter() - t0:.1f} s)")
         results["families"].append(entry)
 
-    for family in DEM_FAMILIES + SCAN_FAMILIES:
+    for family in along(DEM_FAMILIES + SCAN_FAMILIES, "real data"):
         absent = [f for f in family.files if not (folder / f).is_file()]
         if absent:
             results["missing"].append({"family": family.name, "files": absent, "hint": MISSING_HINT})
@@ -235,7 +239,7 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
                      "observed_share": ss.observed_share, "metrics": {}}
             run(entry, ss.scan, ss.mask, lambda pred, ss=ss: score_scan_set(pred, ss))
     if synthetic:
-        for ts in synthetic_edge_sets(size, device):
+        for ts in along(synthetic_edge_sets(size, device), "synthetic edges"):
             in_range = range_cells(ts.sim.data.map_size, ts.sim.data.map_cell, ts.sim.lidar.max_range)
             entry = {"family": ts.terrain, "kind": "synthetic", "note": "outside the training ranges",
                      "observed_share": float((ts.mask > 0).float().mean()), "metrics": {},

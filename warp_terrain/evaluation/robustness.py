@@ -75,11 +75,13 @@ def robustness_sets(size: int = 32, device: str = "cpu") -> list[EvalSet]:
     return sets
 
 
-def evaluate_robustness(predictors: Mapping[str, Callable], size: int = 32, device: str = "cpu", progress=None) -> dict:
-    """RMSE/MAE etc. of every predictor on every robustness set."""
+def evaluate_robustness(predictors: Mapping[str, Callable], size: int = 32, device: str = "cpu", progress=None, track=None) -> dict:
+    """RMSE/MAE etc. of every predictor on every robustness set. ``progress`` receives one line
+    per score; ``track(sets, "robustness")``, if given, yields the sets while showing progress."""
     say = progress or (lambda _line: None)
     results = {"size": size, "methods": list(predictors), "settings": []}
-    for ts in robustness_sets(size, device):
+    sets = robustness_sets(size, device)
+    for ts in sets if track is None else track(sets, "robustness"):
         in_range = range_cells(ts.sim.data.map_size, ts.sim.data.map_cell, ts.sim.lidar.max_range)
         entry = {"setting": ts.terrain, "observed_share": float((ts.mask > 0).float().mean()), "metrics": {}}
         for name, f in predictors.items():

@@ -12,7 +12,7 @@ each predictor per map.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import torch
 
@@ -164,6 +164,7 @@ def evaluate(
     threshold: float = OBSTACLE_THRESHOLD,
     on_set: SetCallback | None = None,
     progress: Callable[[str], None] | None = None,
+    track: Callable[[Sequence, str], Iterable] | None = None,
 ) -> dict:
     """Score every predictor on every (setting, noise) test set.
 
@@ -173,7 +174,9 @@ def evaluate(
     name or ``LidarConfig``; ``device``: where the scans are generated and the predictors get
     their inputs; ``on_set(ts, predictions)``: called after each test set is scored, with its
     ``EvalSet`` and each method's ``(N, 1, S, S)`` prediction on the CPU (e.g.
-    ``plots.evaluation.figure_writer``); ``progress``: receives one line per step.
+    ``plots.evaluation.figure_writer``); ``progress``: receives one line per step; ``track``:
+    ``track(test_sets, "evaluate")`` yields the ``(setting, noise)`` pairs in order while showing
+    progress (the CLI passes a tqdm bar on stderr).
 
     Returns ``{"config": {...}, "methods": [...], "settings": [{"setting", "terrain", "noise",
     "samples", "seeds", "observed_share", "metrics": {method: {metric: value}}}, ...],
@@ -195,7 +198,7 @@ def evaluate(
     results: dict = {"config": config, "methods": list(predictors), "settings": [], "ms_per_map": {}}
     seconds = dict.fromkeys(predictors, 0.0)
     maps = 0
-    for terrain, level in pairs:
+    for terrain, level in pairs if track is None else track(pairs, "evaluate"):
         t0 = time.perf_counter()
         ts = make_eval_set(terrain, level, size, lidar, device)
         say(f"{ts.name}: {len(ts)} samples generated in {time.perf_counter() - t0:.1f} s")

@@ -46,26 +46,28 @@ def register_configs() -> None:
         cs.store(group="model", name=name, node=model)
 
 
-def to_run_config(cfg) -> RunConfig:
-    """A validated ``RunConfig`` from a Hydra ``DictConfig`` (or a ``RunConfig``)."""
+def to_run_config(cfg, files: bool = True) -> RunConfig:
+    """A validated ``RunConfig`` from a Hydra ``DictConfig`` (or a ``RunConfig``); ``files=False``
+    leaves the DEM rasters it names unopened (``validate_run``)."""
     if isinstance(cfg, RunConfig):
-        return validate_run(cfg)
+        return validate_run(cfg, files)
     if not isinstance(cfg, DictConfig):
         cfg = OmegaConf.create(cfg)
     try:
         merged = OmegaConf.merge(OmegaConf.structured(RunConfig), cfg)
     except OmegaConfBaseException as err:  # wrong type or unknown key: one line naming it
         raise ValueError(f"{err.full_key}: {str(err.msg).splitlines()[0]}") from None
-    return validate_run(OmegaConf.to_object(merged))
+    return validate_run(OmegaConf.to_object(merged), files)
 
 
-def compose_run(overrides: list[str] | tuple[str, ...] = ()) -> RunConfig:
-    """The ``RunConfig`` that ``python train.py OVERRIDES`` runs (no run folder, no logging)."""
+def compose_run(overrides: list[str] | tuple[str, ...] = (), files: bool = True) -> RunConfig:
+    """The ``RunConfig`` that ``python train.py OVERRIDES`` runs (no run folder, no logging);
+    ``files=False`` composes a recipe whose DEM rasters are not on this machine."""
     register_configs()
     with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         cfg = compose(config_name=CONFIG_NAME, overrides=list(overrides))
     cfg = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]) if "hydra" in cfg else cfg
-    return to_run_config(cfg)
+    return to_run_config(cfg, files)
 
 
 def terrain_setting_names() -> list[str]:

@@ -89,6 +89,8 @@ class ModelConfig:
                 self.observed_bound, "expected a finite number >= 0 (metres; 0 leaves observed cells free)")
         require(not self.relief_relative_loss or (self.residual and self.height_scale_min > 0), "relief_relative_loss",
                 self.relief_relative_loss, "needs residual=true and height_scale_min > 0 (the spread's floor)")
+        require(not self.start_from_fill or self.residual, "start_from_fill", self.start_from_fill,
+                "needs residual=true (only a residual generator has a fill to start from)")
         require(not self.residual or self.in_channels == 2, "residual", self.residual,
                 "the fill needs the mask: set in_channels=2 (scan and mask)")
         for key in ("dropout", "beta1", "beta2"):

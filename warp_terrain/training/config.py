@@ -89,21 +89,22 @@ class RunConfig:
         return SimConfig(terrain=self.terrain, lidar=self.lidar, data=self.data)
 
 
-def validate_run(cfg: RunConfig) -> RunConfig:
-    """Check every section and their consistency; the error names the full key."""
+def validate_run(cfg: RunConfig, files: bool = True) -> RunConfig:
+    """Check every section and their consistency; the error names the full key. ``files=False``
+    does not open the DEM rasters a config names (a recorded recipe read where they are absent)."""
     for section in ("terrain", "lidar", "data", "model", "train"):
         try:
-            getattr(cfg, section).validate()
+            getattr(cfg, section).validate(files) if section == "terrain" else getattr(cfg, section).validate()
         except ValueError as err:
             raise ValueError(f"{section}.{err}") from None
     if cfg.model.name == "paper" and cfg.data.map_size != 121:
         raise ValueError(f"data.map_size={cfg.data.map_size}: model=paper is Table 2's net for 121x121 maps; use model=unet for other sizes")
     _check_obstacle_room(cfg)
-    _check_dem_mix(cfg)
+    _check_dem_mix(cfg, files)
     return cfg
 
 
-def _check_dem_mix(cfg: RunConfig) -> None:
+def _check_dem_mix(cfg: RunConfig, files: bool) -> None:
     """A randomised fBm world that mixes in real ground needs rasters that load."""
     mix = cfg.data.randomize
     if not (mix.enabled and mix.dem_probability > 0) or cfg.terrain.source == "dem":
@@ -111,7 +112,7 @@ def _check_dem_mix(cfg: RunConfig) -> None:
     if not cfg.terrain.dem.files:
         raise ValueError(f"data.randomize.dem_probability={mix.dem_probability}: mixes in real ground: name the rasters in terrain.dem.files")
     try:
-        cfg.terrain.dem.validate("dem", load=True)
+        cfg.terrain.dem.validate("dem", load=files)
     except ValueError as err:
         raise ValueError(f"terrain.{err}") from None
 

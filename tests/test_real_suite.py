@@ -13,6 +13,7 @@ from warp_terrain.evaluation.real import (
     HIDE_SHARE,
     MISSING_HINT,
     RAISED_M,
+    REAL_SEED_BASE,
     SCAN_FAMILIES,
     evaluate_real,
     raised_cells,
@@ -144,3 +145,26 @@ def test_evaluate_real_from_the_command_line(tmp_path, capsys):
     out = capsys.readouterr().out
     assert family.name in out and "missing:" in out and (tmp_path / "real.md").read_text() in out + "\n"
     assert main(["evaluate", "--real", "--robustness"]) == 2
+
+
+def test_the_suite_reports_how_often_the_error_lies_within_sigma(tmp_path):
+    """A predictor off by 0.1 m on every cell, claiming sigma 0.15 m on half the map and 0.08 m
+    on the other: the hidden cells in the first half are within 1 sigma, the others within 2
+    sigma only, so the shares are the halves' shares of the suite's hidden cells."""
+    family = SCAN_FAMILIES[1]
+    for name in family.files:
+        flat_scan_with_a_box(tmp_path / name)
+    ss = scan_family_set(family, tmp_path, 1, 121, 0.25, REAL_SEED_BASE + 100 + SCAN_FAMILIES.index(family))  # the suite's draw
+    sigma = torch.full_like(ss.measured, 0.08)
+    sigma[..., :60, :] = 0.15
+
+    def offset(scan, mask):
+        return ss.measured + 0.1, sigma
+
+    results = evaluate_real({"model": offset, "nearest": BASELINES["nearest"]}, data_dir=tmp_path, repeats=1, device="cpu", synthetic=False)
+    (entry,) = results["families"]
+    m = entry["metrics"]["model"]
+    first_half = float(ss.hidden[..., :60, :].sum() / ss.hidden.sum())
+    assert m["within_1sigma"] == pytest.approx(first_half, abs=1e-6) and 0.2 < first_half < 0.8
+    assert m["within_2sigma"] == 1.0 and "within_1sigma" not in entry["metrics"]["nearest"]
+    assert f"| {family.name} | {100 * first_half:.0f} % | 100 % |" in real_markdown(results)

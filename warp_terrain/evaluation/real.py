@@ -187,16 +187,23 @@ def _rmse(pred: torch.Tensor, target: torch.Tensor, cells: torch.Tensor) -> floa
     return float(((pred - target)[cells]).square().mean().sqrt()) if bool(cells.any()) else float("nan")
 
 
-def score_scan_set(pred: torch.Tensor, ss: ScanSet) -> dict[str, float]:
-    """RMSE (m) on the hidden cells: all, ground-like and raised."""
-    return {"rmse_hidden": _rmse(pred, ss.measured, ss.hidden), "rmse_hidden_ground": _rmse(pred, ss.measured, ss.hidden & ~ss.raised),
-            "rmse_hidden_raised": _rmse(pred, ss.measured, ss.raised), "raised_share": float(ss.raised.sum() / ss.hidden.sum().clamp(min=1))}
+def score_scan_set(pred: torch.Tensor, ss: ScanSet, sigma: torch.Tensor | None = None) -> dict[str, float]:
+    """RMSE (m) on the hidden cells: all, ground-like and raised; with ``sigma``, the share of
+    hidden cells whose error lies within 1 and 2 sigma."""
+    out = {"rmse_hidden": _rmse(pred, ss.measured, ss.hidden), "rmse_hidden_ground": _rmse(pred, ss.measured, ss.hidden & ~ss.raised),
+           "rmse_hidden_raised": _rmse(pred, ss.measured, ss.raised), "raised_share": float(ss.raised.sum() / ss.hidden.sum().clamp(min=1))}
+    if sigma is not None and bool(ss.hidden.any()):
+        ratio = ((pred - ss.measured).abs() / sigma.clamp_min(1e-12))[ss.hidden]
+        out["within_1sigma"] = float((ratio <= 1.0).float().mean())
+        out["within_2sigma"] = float((ratio <= 2.0).float().mean())
+    return out
 
 
 # ------------------------------------------------------------------------------ the suite
-def _predict(f, scan: torch.Tensor, mask: torch.Tensor, device: str) -> torch.Tensor:
+def _predict(f, scan: torch.Tensor, mask: torch.Tensor, device: str) -> tuple[torch.Tensor, torch.Tensor | None]:
     out = f(scan.to(device), mask.to(device))
-    return (out[0] if isinstance(out, tuple) else out).detach().float().cpu()
+    pred, sigma = out if isinstance(out, tuple) else (out, None)
+    return pred.detach().float().cpu(), None if sigma is None else sigma.detach().float().cpu()
 
 
 def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int = 32, repeats: int = 3, device=None,
@@ -216,7 +223,7 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
     def run(entry: dict, scan, mask, scorer):
         for name, f in predictors.items():
             t0 = time.perf_counter()
-            entry["metrics"][name] = scorer(_predict(f, scan, mask, device))
+            entry["metrics"][name] = scorer(*_predict(f, scan, mask, device))
             key = next(iter(entry["metrics"][name]))
             say(f"{entry['family']:<40} {name:<12} {key} {entry['metrics'][name][key]:.4f} m ({time.perf_counter() - t0:.1f} s)")
         results["families"].append(entry)
@@ -232,19 +239,19 @@ def evaluate_real(predictors: Mapping[str, Callable], data_dir=None, size: int =
             in_range = range_cells(ts.sim.data.map_size, ts.sim.data.map_cell, ts.sim.lidar.max_range)
             entry = {"family": family.name, "kind": "dem", "note": family.note, "observed_share": float((ts.mask > 0).float().mean()),
                      "metrics": {}, "statistics": map_statistics(ts.target, ts.mask, ts.sim.data.map_cell, ts.ground)}
-            run(entry, ts.scan, ts.mask, lambda pred, ts=ts, in_range=in_range: score(pred, ts, in_range))
+            run(entry, ts.scan, ts.mask, lambda pred, sigma, ts=ts, in_range=in_range: score(pred, ts, in_range, sigma=sigma))
         else:
             ss = scan_family_set(family, folder, repeats, MAP.size, MAP.cell, REAL_SEED_BASE + 100 + SCAN_FAMILIES.index(family))
             entry = {"family": family.name, "kind": "scan", "note": f"{HIDE_SHARE:.0%} of observed cells hidden, {repeats} repeats",
                      "observed_share": ss.observed_share, "metrics": {}}
-            run(entry, ss.scan, ss.mask, lambda pred, ss=ss: score_scan_set(pred, ss))
+            run(entry, ss.scan, ss.mask, lambda pred, sigma, ss=ss: score_scan_set(pred, ss, sigma))
     if synthetic:
         for ts in along(synthetic_edge_sets(size, device), "synthetic edges"):
             in_range = range_cells(ts.sim.data.map_size, ts.sim.data.map_cell, ts.sim.lidar.max_range)
             entry = {"family": ts.terrain, "kind": "synthetic", "note": "outside the training ranges",
                      "observed_share": float((ts.mask > 0).float().mean()), "metrics": {},
                      "statistics": map_statistics(ts.target, ts.mask, ts.sim.data.map_cell)}
-            run(entry, ts.scan, ts.mask, lambda pred, ts=ts, in_range=in_range: score(pred, ts, in_range))
+            run(entry, ts.scan, ts.mask, lambda pred, sigma, ts=ts, in_range=in_range: score(pred, ts, in_range, sigma=sigma))
         results["world"] = world_statistics(size, device)
     return results
 
@@ -279,6 +286,14 @@ def real_markdown(results: dict, model: str = "model") -> str:
         cells = [f"**{values[m]:.4f}**" if m == winner else f"{values[m]:.4f}" for m in methods]
         ratio = f" {values[model] / values[best]:.2f} |" if model in methods and best else ""
         lines.append(f"| {e['family']} | {e['kind']} | {100 * e['observed_share']:.0f} % | " + " | ".join(cells) + f" | {best or '-'} |" + ratio)
+    calibrated = [e for e in results["families"] if model in e["metrics"] and "within_1sigma" in e["metrics"][model]]
+    if calibrated:
+        lines += ["", f"The {model}'s sigma on each family: share of scored cells (unobserved, or hidden for scans) whose error "
+                  "lies within 1 and 2 sigma (a calibrated Gaussian: 68 % / 95 %)", "",
+                  "| family | within 1 sigma | within 2 sigma |", "|---|---:|---:|"]
+        for e in calibrated:
+            m = e["metrics"][model]
+            lines.append(f"| {e['family']} | {100 * m['within_1sigma']:.0f} % | {100 * m['within_2sigma']:.0f} % |")
     scans = [e for e in results["families"] if e["kind"] == "scan"]
     if scans and model in methods and fills:
         lines += ["", "Real scans, hidden cells split (RMSE, m): ground-like / raised (share raised)", "",

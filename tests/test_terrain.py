@@ -3,16 +3,43 @@
 import numpy as np
 import pytest
 import torch
+import warp as wp
 
 import warp_terrain as wt
+from warp_terrain.kernels import noise as noise_kernels
 from warp_terrain.sim.terrain import ObstacleConfig, TerrainConfig, grid_size, make_heightfields
 
 
-def test_shape_dtype_and_amplitude_bound():
-    h = wt.fractal_heightfield(3, 49, 0.25, octaves=5, amplitude=2.0, seed=7, device="cpu")
-    assert h.shape == (3, 49, 49) and h.dtype == torch.float32 and h.device.type == "cpu"
-    assert h.abs().max() <= 2.0
-    assert h.std() > 0.05  # not flat
+@wp.kernel
+def _noise_at(field: wp.uint32, points: wp.array(dtype=wp.vec2), out: wp.array(dtype=float)):
+    k = wp.tid()
+    out[k] = wp.noise(field, points[k])
+
+
+def test_shape_dtype_and_the_height_scale_of_warps_noise():
+    """(batch, size, size) float32 on the CPU, and at every vertex the documented sum
+    amplitude * sqrt(2) * sum_o p^o noise_o(2^o (x, y) / feature_size + offset_o) / sum_o p^o,
+    evaluated here with ``wp.noise`` itself at the vertex's point (the default feature size 8 m:
+    every octave of this grid comes from the CPU path's gradient table). Measured 1.3e-7 m off
+    on heights up to 0.99 m: tolerance 1e-5 m (a field 29 % flatter is up to 0.29 m off)."""
+    batch, size, cell, octaves, amplitude, seed, feature = 3, 49, 0.25, 5, 2.0, 7, 8.0
+    h = wt.fractal_heightfield(batch, size, cell, octaves=octaves, amplitude=amplitude, seed=seed, device="cpu")
+    assert h.shape == (batch, size, size) and h.dtype == torch.float32 and h.device.type == "cpu"
+    fields = wp.empty((batch, octaves), dtype=wp.uint32, device="cpu")
+    offsets = wp.empty((batch, octaves), dtype=wp.vec2, device="cpu")
+    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[seed, 0], outputs=[fields, offsets], device="cpu")
+    u = (np.arange(size) - 0.5 * (size - 1)) * cell / feature
+    uv = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1).reshape(-1, 2)
+    out = wp.empty(len(uv), dtype=float, device="cpu")
+    for b in range(batch):
+        total = np.zeros(len(uv))
+        for o in range(octaves):
+            points = wp.array((uv * 2.0**o + offsets.numpy()[b, o]).astype(np.float32), dtype=wp.vec2, device="cpu")
+            wp.launch(_noise_at, dim=len(uv), inputs=[wp.uint32(int(fields.numpy()[b, o])), points], outputs=[out], device="cpu")
+            total += 0.5**o * out.numpy()
+        expected = amplitude * np.sqrt(2.0) * total / sum(0.5**o for o in range(octaves))
+        np.testing.assert_allclose(h[b].numpy().ravel(), expected, rtol=0, atol=1e-5)
+    assert 0.9 < h.abs().max() <= amplitude  # not a flat field: measured 0.99 m
 
 
 def _per_vertex_wp_noise(batch, size, cfg, seed, feature_size):
@@ -146,17 +173,27 @@ def test_pit_and_ditch_cut_to_their_depth():
             assert abs(area - expected) / expected < 0.15
 
 
-def test_obstacle_counts_follow_the_config():
+def _obstacle_counts(cylinders: tuple[int, int], pits: tuple[int, int], batch: int, seed: int) -> np.ndarray:
+    """(batch, 2): how many cylinders and pits each flat terrain holds. A cylinder's flat top
+    and a pit's floor sit at its own drawn height (0.5-2 m up, 0.2-1 m down), so the distinct
+    heights above and below the ground count them; 0.4 m wide in +-7 m, none hides another
+    completely at these seeds."""
     cfg = TerrainConfig(amplitude=0.0, octaves=1, cell=0.1, keep_out=0.0)
-    cfg.boxes = ObstacleConfig(count_min=0, count_max=0)
-    cfg.rocks = ObstacleConfig(count_min=3, count_max=3, width_min=0.5, width_max=0.5, height_min=1.0, height_max=1.0)
-    h = make_heightfields(2, 201, cfg, seed=1, device="cpu", obstacle_region=8.0).numpy()
-    from scipy import ndimage
+    size = dict(width_min=0.4, width_max=0.4)
+    cfg.cylinders = ObstacleConfig(count_min=cylinders[0], count_max=cylinders[1], height_min=0.5, height_max=2.0, **size)
+    cfg.pits = ObstacleConfig(count_min=pits[0], count_max=pits[1], height_min=0.2, height_max=1.0, **size)
+    h = make_heightfields(batch, 161, cfg, seed=seed, device="cpu", obstacle_region=7.0).numpy()
+    return np.array([(len(np.unique(x[x > 0])), len(np.unique(x[x < 0]))) for x in h])
 
-    for b in range(2):
-        labels, n = ndimage.label(h[b] > 0)
-        assert 1 <= n <= 3  # three rocks (two may touch)
-        assert h[b].max() <= 1.0 + 1e-6
+
+def test_obstacle_counts_follow_the_config():
+    """A fixed count gives exactly that many obstacles of each kind in every sample (none of a
+    kind whose count is 0: boxes, rocks, ditches); a range gives every count in it over 64
+    samples (measured 17/20/10/17 samples with 1/2/3/4 cylinders) and none outside it."""
+    np.testing.assert_array_equal(_obstacle_counts((3, 3), (2, 2), batch=8, seed=1), np.tile([3, 2], (8, 1)))
+    counts = _obstacle_counts((1, 4), (0, 2), batch=64, seed=2)
+    assert set(counts[:, 0]) == {1, 2, 3, 4}
+    assert set(counts[:, 1]) == {0, 1, 2}
 
 
 def test_bad_obstacle_config_names_the_field():
@@ -170,7 +207,17 @@ def test_bad_obstacle_config_names_the_field():
         cfg.validate()
 
 
-def test_grid_size_is_odd_and_covers_the_extent():
-    for extent, cell in [(30.25, 0.125), (10.0, 0.1), (1.0, 0.3)]:
-        n = grid_size(extent, cell)
-        assert n % 2 == 1 and (n - 1) * cell >= extent - 1e-9
+@pytest.mark.parametrize(
+    "extent, cell, n",
+    [
+        (30.25, 0.125, 243),  # the default 121 x 0.25 m map and 1 m margins at 0.125 m
+        (10.0, 0.1, 101),
+        (1.0, 0.3, 5),
+        (1.0, 0.4, 5),  # 1.25 cells each side: rounding would give 3 vertices spanning 0.8 m
+        (4.2, 0.3, 15),  # 0.5 * 4.2 / 0.3 = 7.000000000000001 in floats: exactly 7 cells each side
+        (0.001, 1.0, 3),
+    ],
+)
+def test_grid_size_is_the_smallest_odd_count_that_covers_the_extent(extent, cell, n):
+    assert grid_size(extent, cell) == n
+    assert (n - 1) * cell >= extent - 1e-9 > (n - 3) * cell

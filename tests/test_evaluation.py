@@ -145,6 +145,8 @@ def test_nearest_reproduces_a_checkerboard_from_tile_centres():
 
 @pytest.mark.parametrize("name", ["biharmonic", "telea", "ns"])
 def test_inpainting_keeps_observed_cells_and_fills_a_constant(name, rng):
+    """Observed cells exactly, a constant map and the map's border; what is specific to each
+    method (a biharmonic field, beating nearest on sparse cells) is in test_known_answers."""
     fill = BASELINES[name]
     z = rng.normal(-1.8, 0.5, (24, 24))
     known = rng.random((24, 24)) < 0.3
@@ -155,12 +157,24 @@ def test_inpainting_keeps_observed_cells_and_fills_a_constant(name, rng):
     known = rng.random((24, 24)) < 0.3
     out = fill(t(np.where(known, -1.8, 0)), t(known))[0, 0].numpy()
     np.testing.assert_allclose(out, -1.8, atol=1e-4)
-    # row 0 and column 0 (which OpenCV never fills by itself) are filled from their neighbours
-    z = plane((24, 24), a=0.05, b=-0.1, c=3.0)
+    # Row 0 and column 0 (which OpenCV 4 never fills by itself) are filled from their own
+    # neighbours. A flat 3 m map with a 1 m pit observed in the middle: exactly 3 m there (an
+    # unfilled border would come back as the lowest observed height, 2 m).
+    pit = np.full((24, 24), 3.0)
+    pit[12, 12] = 2.0
     known = np.ones((24, 24), bool)
     known[0, :] = known[:, 0] = False
-    out = fill(t(np.where(known, z, 0)), t(known))[0, 0].numpy()
-    np.testing.assert_allclose(out[~known], z[~known], atol=0.3)  # unfilled: off by up to 2.3 m
+    out = fill(t(np.where(known, pit, 0)), t(known))[0, 0].numpy()
+    np.testing.assert_allclose(out[~known], 3.0, rtol=0, atol=1e-4)
+    # A ramp along the border, 0.1 m per cell, with only that row (or column) unknown: measured
+    # RMSE 4.4 mm (biharmonic), 11-12 mm (Telea), 14 mm (Navier-Stokes); tolerance 20 mm. Values
+    # taken one cell along the ramp are 0.1 m off (a crop shifted by one cell: 97-109 mm).
+    ramp = plane((24, 24), a=0.0, b=0.1, c=3.0)
+    for z, unknown in ((ramp, np.s_[0, :]), (ramp.T, np.s_[:, 0])):
+        known = np.ones((24, 24), bool)
+        known[unknown] = False
+        out = fill(t(np.where(known, z, 0)), t(known))[0, 0].numpy()
+        assert np.sqrt(np.mean((out[unknown] - z[unknown]) ** 2)) < 0.02, (name, unknown)
 
 
 def test_opencv_fills_are_scale_free(rng):

@@ -18,6 +18,8 @@
 - :mod:`.registry`: :data:`BENCHMARKS`, :func:`parse_only`, :func:`run_benchmarks` (a selection,
   with the environment).
 - :mod:`.table`: :func:`format_table` renders a run for people.
+- :mod:`.gpucheck`: ``warp-terrain gpu-check``, the check of a machine's CPU and CUDA device
+  (compile, consistency, throughput) as a PASS/FAIL/SKIP table under a hard time limit.
 """
 
 from .anchors import compare_hits, heightfield_triangles, open3d_hits

@@ -3,7 +3,7 @@
 Each sub-command is an ``add_<name>(subparsers)`` that declares its options and a
 ``cmd_<name>(args) -> int`` that calls the library, in one module per command group: ``data``
 (generate, preview), ``figures`` (figures, export-usd), ``evaluate``, ``model`` (reconstruct,
-export-onnx, package-model), ``bench`` and ``view``; shared argument types live in ``args``. To add one,
+export-onnx, package-model), ``bench``, ``gpucheck`` (gpu-check) and ``view``; shared argument types live in ``args``. To add one,
 write both functions and list the adder in ``SUBCOMMANDS``. A ``cmd_<name>`` imports what it
 needs when it runs, so ``warp-terrain --help`` starts fast. ``warp-terrain train OVERRIDES``
 hands the rest of the command line to Hydra (``cli.train``).
@@ -23,6 +23,7 @@ from .bench import add_bench
 from .data import add_generate, add_preview
 from .evaluate import add_evaluate
 from .figures import add_export_usd, add_figures
+from .gpucheck import add_gpu_check
 from .model import add_export_onnx, add_package_model, add_reconstruct
 from .view import add_view
 
@@ -51,7 +52,7 @@ def run_train(args: list[str]) -> int:
 
 # ------------------------------------------------------------------------------ entry point
 SUBCOMMANDS = (add_train, add_bench, add_preview, add_figures, add_export_usd, add_generate, add_evaluate, add_reconstruct, add_export_onnx,
-               add_package_model, add_view)
+               add_package_model, add_view, add_gpu_check)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,11 +9,13 @@ import pytest
 from conftest import tiny_sim
 from pxr import Usd, UsdGeom
 
+from warp_terrain.bench.harness import SEED
 from warp_terrain.cli import SUBCOMMANDS, build_parser, main
 from warp_terrain.core.geometry import MapGeometry
 from warp_terrain.evaluation.calibrate import package_model
 from warp_terrain.export import export_sample
 from warp_terrain.inference.maps import write_map
+from warp_terrain.training import RunConfig
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -30,10 +32,35 @@ def test_bench_json_quick_noise(capsys):
     assert noise["params"]["octaves"] == 5
 
 
-def test_bench_table(capsys):
+_ENV = {"device": "cpu", "device_name": "test CPU", "cpu_count": 2, "warp": "1.0", "torch": "2.0", "python": "3.11",
+        "warp_terrain": "0.1.0", "platform": "test"}
+_NOISE = {"workload": "noise", "params": {"batch": 8, "size": 257, "octaves": 5}, "median_s": 0.0125,
+          "samples_per_s": 8 * 257 * 257 / 0.0125, "heightfields_per_s": 640.0}
+
+
+def test_bench_table(capsys, monkeypatch):
+    """Without --json, stdout is the table of what the benchmarks returned (run here with fixed
+    numbers, so the text is known): the header, a ruled table with the noise row in ms and
+    M samples/s, and the footer. The command passes the device, --only and --quick through."""
+    calls = []
+
+    def fixed(**kwargs):
+        calls.append({k: kwargs[k] for k in ("device", "only", "quick")})
+        return {"environment": _ENV, "quick": True, "results": {"noise": _NOISE}}
+
+    monkeypatch.setattr("warp_terrain.bench.run_benchmarks", fixed)
     assert main(["bench", "--quick", "--only", "noise", "--device", "cpu"]) == 0
-    out = capsys.readouterr().out
-    assert "noise" in out and "samples/s" in out
+    assert calls == [{"device": "cpu", "only": ["noise"], "quick": True}]
+    assert capsys.readouterr().out.splitlines() == [
+        "warp-terrain 0.1.0 bench on cpu (test CPU, 2 CPUs)  warp 1.0  torch 2.0  [quick]",
+        "",
+        "workload  parameters                             median    throughput",
+        "--------  -------------------------------------  --------  -------------------------------",
+        "noise     8 fBm heightfields 257x257, 5 octaves  12.50 ms  42.27M samples/s (640 fields/s)",
+        "",
+        "median of repeats after one warm-up call (compilation excluded); device synchronised before each clock read",
+        "ours = N x anchor: our throughput over the anchor's on the same work (> 1: ours is faster)",
+    ]
 
 
 def test_preview_writes_png(tmp_path, capsys):
@@ -81,18 +108,31 @@ def test_preview_rejects_non_png(tmp_path, capsys):
     assert "x.jpg" in capsys.readouterr().err
 
 
-def test_parser_lists_subcommands():
-    help_text = build_parser().format_help()
-    assert "bench" in help_text and "preview" in help_text
+def test_bench_loader_compares_worker_processes(capsys, monkeypatch):
+    """The loader workload pulls the default training stream (batch 8) with 0, 1 and 2 worker
+    processes: a stream stands in for the real one here and records what it was asked for. Each
+    run opens the stream with its worker count for the start-up batch plus the 2 timed ones
+    (--quick), pulls exactly those 3, and reports 8 x 2 pairs over the timed seconds."""
+    streams = []
 
+    def stream(sim, batch, seed, rank, start, stop, device, workers, prefetch):
+        record = {"sim": sim, "batch": batch, "seed": seed, "range": (start, stop), "device": device, "workers": workers, "pulled": 0}
+        streams.append(record)
+        for step in range(start, stop):
+            record["pulled"] += 1
+            yield {"step": step}
 
-@pytest.mark.slow
-def test_bench_loader_compares_worker_processes(capsys):
-    assert main(["bench", "--json", "--quick", "--only", "loader"]) == 0
-    report = json.loads(capsys.readouterr().out)
-    loader = report["results"]["loader"] if "results" in report else report["loader"]
-    assert [r["workers"] for r in loader["runs"]] == [0, 1, 2]
-    assert all(r["pairs_per_s"] > 0 for r in loader["runs"])
+    monkeypatch.setattr("warp_terrain.bench.loader.training_batches", stream)
+    assert main(["bench", "--json", "--quick", "--only", "loader", "--device", "cpu"]) == 0
+    loader = json.loads(capsys.readouterr().out)["results"]["loader"]
+    sim = RunConfig().sim()
+    assert [r.pop("sim") == sim for r in streams] == [True] * 3
+    assert streams == [{"batch": 8, "seed": SEED, "range": (0, 3), "device": "cpu", "workers": w, "pulled": 3} for w in (0, 1, 2)]
+    assert loader["params"] == {"batch": 8, "lidar": sim.lidar.name, "map_size": sim.data.map_size, "seed": SEED}
+    assert [(r["workers"], r["batches"]) for r in loader["runs"]] == [(0, 2), (1, 2), (2, 2)]
+    for r in loader["runs"]:
+        assert r["seconds"] > 0 and r["pairs_per_s"] == 8 * 2 / r["seconds"]
+    assert loader["pairs_per_s"] == {str(r["workers"]): r["pairs_per_s"] for r in loader["runs"]}
 
 
 @pytest.mark.parametrize("group", ["bench", "data", "evaluate", "figures", "model"])

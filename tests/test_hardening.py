@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import os
+import types
 
 import pytest
 
@@ -60,6 +62,50 @@ def test_a_huge_batch_is_refused_on_this_machine():
         generate_batch(10**8, SimConfig(), seed=0)
 
 
-def test_available_memory_is_known_on_the_host():
+MEMINFO = "MemTotal:       16384000 kB\nMemFree:          512000 kB\nMemAvailable:    8192000 kB\nBuffers:  1 kB\n"
+
+
+def test_available_memory_is_the_kernels_memavailable(monkeypatch):
+    """The host's free memory is /proc/meminfo's MemAvailable (kB, so x 1024), not MemFree or
+    MemTotal; without /proc, the available pages x the page size; None if neither is known.
+    A GPU's is Warp's ``free_memory`` (0: unknown)."""
+    opened = []
+
+    def meminfo(path, *args, **kwargs):
+        opened.append(path)
+        return io.StringIO(MEMINFO)
+
+    monkeypatch.setattr(memory, "open", meminfo, raising=False)
+    assert memory.available_bytes("cpu") == 8192000 * 1024
+    assert opened == ["/proc/meminfo"]
+
+    def missing(path, *args, **kwargs):
+        raise FileNotFoundError(path)
+
+    monkeypatch.setattr(memory, "open", missing, raising=False)
+    monkeypatch.setattr(memory.os, "sysconf", {"SC_AVPHYS_PAGES": 3000, "SC_PAGE_SIZE": 4096}.__getitem__)
+    assert memory.available_bytes("cpu") == 3000 * 4096
+
+    def unknown(name):
+        raise ValueError(f"unrecognized configuration name {name}")
+
+    monkeypatch.setattr(memory.os, "sysconf", unknown)
+    assert memory.available_bytes("cpu") is None
+
+    free = {"cuda:0": 123 * 2**20, "cuda:1": 0}
+    monkeypatch.setattr(memory.wp, "get_device", lambda device: types.SimpleNamespace(free_memory=free[device]))
+    assert memory.available_bytes("cuda:0") == 123 * 2**20
+    assert memory.available_bytes("cuda:1") is None
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/meminfo"), reason="reads Linux's /proc/meminfo")
+def test_available_memory_on_this_host_is_between_two_readings_of_memavailable():
+    def mem_available() -> int:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+
+    before = mem_available()
     free = memory.available_bytes("cpu")
-    assert free is None or free > 0
+    after = mem_available()
+    slack = 256 * 2**20  # the training run beside the tests allocates and frees between readings
+    assert min(before, after) - slack <= free <= max(before, after) + slack

@@ -53,19 +53,20 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float) -> torch.Tensor:
-    """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``."""
+    """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``.
+
+    Where a map has converged (``r = 0``, so ``p = 0``) both step sizes are ``0 / tiny = 0``:
+    no branch, so a batch runs the same ops for every map (and exports as a plain graph)."""
     r = -free * _operator(u, tension)
     p = r
     rr = _dot(r, r)
     for _ in range(steps):
         ap = free * _operator(p, tension)
-        pap = _dot(p, ap)
-        alpha = torch.where(pap > 0, rr / pap.clamp_min(1e-30), torch.zeros_like(pap))
+        alpha = rr / _dot(p, ap).clamp_min(1e-30)
         u = u + alpha * p
         r = r - alpha * ap
         rr_new = _dot(r, r)
-        beta = torch.where(rr > 0, rr_new / rr.clamp_min(1e-30), torch.zeros_like(rr))
-        p = r + beta * p
+        p = r + (rr_new / rr.clamp_min(1e-30)) * p
         rr = rr_new
     return u
 

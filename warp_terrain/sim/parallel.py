@@ -26,6 +26,7 @@ import numpy as np
 import warp as wp
 
 from ..core.checks import require
+from .device import init_warp
 from .lidar import LidarConfig
 from .scan import columns_walkable, trace
 from .terrain import TerrainConfig, make_heightfields
@@ -68,7 +69,7 @@ def _serve(conn, job, args, core):
     if core is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {core})  # one worker per core: they never queue on the same one
     wp.config.quiet = True
-    wp.init()
+    init_warp()  # without the no-CUDA-driver warning on a CPU machine
     run, shms = job(*args)
     try:
         run()  # load the module before the first timed run

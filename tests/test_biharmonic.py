@@ -227,3 +227,18 @@ def test_config_names_bad_fill_and_reference():
     for key, value in (("base_fill", "kriging"), ("height_reference", "median"), ("observed_bound", -1.0)):
         with pytest.raises(ValueError, match=key):
             model_config(**{key: value})
+
+
+def test_with_the_plane_fill_the_whole_model_moves_with_any_added_plane():
+    """``plane_biharmonic`` + the plane reference: adding a plane to the scan changes nothing the
+    net sees and the fill moves by that plane, on any mask (not only a framed one)."""
+    torch.manual_seed(2)
+    g = build_generator(model_config(start_from_fill=False, base_fill="plane_biharmonic")).eval()
+    z, known = t(smooth_field(48, 21)), t(rings(48, 22))
+    r, c = torch.meshgrid(torch.arange(48.0), torch.arange(48.0), indexing="ij")
+    tilt = (0.5 * r + 0.2 * c - 3.0)[None, None]  # 34 m across the map
+    with torch.no_grad():
+        a = g(torch.cat([z * known, known], dim=1))
+        b = g(torch.cat([(z + tilt) * known, known], dim=1))
+    torch.testing.assert_close(b[:, :1], a[:, :1] + tilt, rtol=0, atol=2e-4 * 34)
+    torch.testing.assert_close(b[:, 1:], a[:, 1:], rtol=0, atol=1e-3)

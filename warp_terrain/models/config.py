@@ -52,6 +52,7 @@ class ModelConfig:
     relief_relative_loss: bool = False
     # residual only: the classical fill the net corrects: "push_pull" (a normalised-convolution
     # pyramid) | "biharmonic" (the thin plate, as skimage's inpaint_biharmonic; models/biharmonic.py)
+    # | "plane_biharmonic" (the thin plate about the observed cells' least-squares plane, plus the plane)
     base_fill: str = "push_pull"
     # residual only: the net sees heights relative to the "mean" observed height or to the observed
     # cells' least-squares "plane" (slope-robust: a tilted window looks level to the net)

@@ -26,7 +26,7 @@ from torch import nn
 from .biharmonic import biharmonic_fill
 
 #: base fills a ``FillResidualGenerator`` can correct
-BASE_FILLS = ("push_pull", "biharmonic")
+BASE_FILLS = ("push_pull", "biharmonic", "plane_biharmonic")
 #: what the net's heights are taken relative to: the mean observed height, or the observed cells'
 #: least-squares plane (a tilted window then looks level to the net)
 HEIGHT_REFERENCES = ("mean", "plane")
@@ -93,7 +93,10 @@ class FillResidualGenerator(nn.Module):
     """condition (B, 2, H, W) = (scan, mask) -> fill + s * net((fill - reference) / s, mask).
 
     - ``base``: the classical fill corrected: ``"push_pull"`` (:func:`push_pull_fill`) or
-      ``"biharmonic"`` (:func:`biharmonic_fill`, the thin plate);
+      ``"biharmonic"`` (:func:`biharmonic_fill`, the thin plate), or ``"plane_biharmonic"`` (the
+      thin plate of the heights about the observed cells' plane, plus that plane: a slope runs
+      on into the holes, and with ``reference="plane"`` the whole model moves by exactly any
+      plane added to the scan);
     - ``reference``: ``"mean"`` (the mean observed height) or ``"plane"`` (the observed cells'
       least-squares plane, :func:`observed_plane`);
     - s is 1, or the spread of the observed heights about the reference (>= ``height_scale_min``
@@ -117,6 +120,9 @@ class FillResidualGenerator(nn.Module):
     def base_fill(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The classical fill the net corrects (no gradient: it has no parameters)."""
         with torch.no_grad():
+            if self.base == "plane_biharmonic":
+                plane = observed_plane(scan, mask)
+                return biharmonic_fill(scan - plane, mask) + plane
             return biharmonic_fill(scan, mask) if self.base == "biharmonic" else push_pull_fill(scan, mask)
 
     def forward(self, condition: torch.Tensor) -> torch.Tensor:

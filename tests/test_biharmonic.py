@@ -242,3 +242,21 @@ def test_with_the_plane_fill_the_whole_model_moves_with_any_added_plane():
         b = g(torch.cat([(z + tilt) * known, known], dim=1))
     torch.testing.assert_close(b[:, :1], a[:, :1] + tilt, rtol=0, atol=2e-4 * 34)
     torch.testing.assert_close(b[:, 1:], a[:, 1:], rtol=0, atol=1e-3)
+
+
+def test_fill_relative_weights_are_the_inverse_fill_errors_normalised():
+    """Two maps whose fills err by 0.02 m and 0.5 m on their unobserved cells (observed cells,
+    however wrong, do not count; the 1 cm floor applies to a perfect fill) weigh 1 / error,
+    scaled to a mean of 1."""
+    from warp_terrain.models.fill import fill_relative_weight
+
+    target = torch.zeros(3, 1, 4, 4)
+    mask = torch.zeros(3, 1, 4, 4)
+    mask[:, :, 0, :] = 1.0
+    base = torch.zeros(3, 1, 4, 4)
+    base[0] = 0.02
+    base[1, :, 1:] = -0.5
+    base[:, :, 0, :] = 9.0  # observed cells: not scored
+    w = fill_relative_weight(base, target, mask, floor=0.01).flatten()
+    inverse = torch.tensor([1 / 0.02, 1 / 0.5, 1 / 0.01])
+    torch.testing.assert_close(w, inverse / inverse.mean(), rtol=1e-6, atol=0)

@@ -158,6 +158,7 @@ INVALID = {
     "model.height_reference": "median",
     "model.observed_bound": -0.1,
     "model.start_from_fill": "maybe",
+    "model.fill_relative_loss": "maybe",
     "train.steps": 0,
     "train.batch_size": 0,
     "train.val_every": 0,

@@ -60,6 +60,10 @@ class ModelConfig:
     # residual only: the most (m) the correction may move an observed cell (bound * tanh(c / bound));
     # 0 leaves observed cells free
     observed_bound: float = 0.0
+    # residual only: weight each map's loss by 1 / the base fill's mean error on its unobserved
+    # cells (at least 1 cm), so the net learns to improve on the fill on every map, not only
+    # on the maps where the fill errs by metres
+    fill_relative_loss: bool = False
     # residual only: the net's last layer starts at zero, so the untrained model is the base fill
     # exactly and training only adds what improves on it
     start_from_fill: bool = False
@@ -90,6 +94,8 @@ class ModelConfig:
                 self.observed_bound, "expected a finite number >= 0 (metres; 0 leaves observed cells free)")
         require(not self.relief_relative_loss or (self.residual and self.height_scale_min > 0), "relief_relative_loss",
                 self.relief_relative_loss, "needs residual=true and height_scale_min > 0 (the spread's floor)")
+        require(not self.fill_relative_loss or self.residual, "fill_relative_loss", self.fill_relative_loss,
+                "needs residual=true (only a residual generator has a fill to compare with)")
         require(not self.start_from_fill or self.residual, "start_from_fill", self.start_from_fill,
                 "needs residual=true (only a residual generator has a fill to start from)")
         require(not self.residual or self.in_channels == 2, "residual", self.residual,

@@ -36,7 +36,7 @@ from ..data.stream import validation_set
 from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import calibration, masked_rmse
 from ..models import Pix2PixModel, build_model
-from ..models.fill import loss_weight_map
+from ..models.fill import fill_relative_weight, loss_weight_map
 from ..models.inputs import model_input
 from ..models.uncertainty import standard_deviation
 from ..sim.batch import SimConfig, terrain_size
@@ -228,6 +228,10 @@ def _resume(model: Pix2PixModel, cfg: RunConfig, run_dir: Path, ranks: Ranks) ->
     return int(state["step"]), float(state["best"])
 
 
+#: the least base-fill error (m) a map's loss is divided by with ``model.fill_relative_loss``
+FILL_ERROR_FLOOR = 0.01
+
+
 def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
     """Optimiser step ``step``: take the next batch from ``batches`` (it must be batch ``step``),
     set the learning rates to the schedule's (``lr_factor``) and step the model on it. The time
@@ -244,6 +248,10 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
             g["lr"] = run.base_lrs[id(opt)] * factor
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items() if k != "step"}
     weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor, cfg.model.height_reference)
+    if cfg.model.fill_relative_loss:
+        base = model.generator.base_fill(batch["scan"], batch["mask"])
+        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR)
+        weight = per_map.expand_as(batch["mask"]) if weight is None else weight * per_map
     model.set_input(model_input(batch["scan"], batch["mask"], cfg.model.in_channels), batch["target"], weight)
     model.optimize_parameters()
     t2 = time.perf_counter()

@@ -86,11 +86,13 @@ def reconstructor_predictor(rec: Reconstructor, chunk: int = 16, path=None) -> P
         "residual": rec.model_config.residual,
         "uncertainty": rec.has_uncertainty,
         "tta": rec.tta,
+        "self_check": rec.self_check,
     }
     return Predictor(predict, rec.model_config.in_channels, _trained_sim(rec.meta), info)
 
 
-def load_predictor(path=None, device=None, chunk: int = 16, tta: bool = True) -> Predictor:
+def load_predictor(path=None, device=None, chunk: int = 16, tta: bool = True, self_check: bool | None = None) -> Predictor:
     """The predictor of a training checkpoint (``checkpoints/best.pt``), a ``Reconstructor`` file,
-    or (``path=None``) the model shipped in the package; ``tta``: average the 8 orientations."""
-    return reconstructor_predictor(Reconstructor.load(path, device=device, tta=tta), chunk, path)
+    or (``path=None``) the model shipped in the package; ``tta``: average the 8 orientations;
+    ``self_check``: check each map on its own scan (``Reconstructor``; None: as the file says)."""
+    return reconstructor_predictor(Reconstructor.load(path, device=device, tta=tta, self_check=self_check), chunk, path)

@@ -16,6 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
+from .selfcheck import best_fill, candidate_fills, correction_weight, hidden_cells, pick
 
 PRETRAINED = "reconstructor.pt"
 
@@ -57,16 +58,20 @@ class Reconstructor:
     validation pairs when the model is packaged (:func:`~warp_terrain.evaluation.calibrate.fit_sigma_scale`).
     """
 
-    def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True):
+    def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
+                 self_check: bool | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
         self.model_config = model_config
         self.meta = dict(meta or {})
         self.tta = bool(tta)
+        # None: as the model file says (``meta["self_check"]``, set when it was packaged)
+        wanted = bool(self.meta.get("self_check", False)) if self_check is None else bool(self_check)
+        self.self_check = wanted and hasattr(self.generator, "base_fill")
 
     # -- files --------------------------------------------------------------------------------
     @classmethod
-    def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True) -> Reconstructor:
+    def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")
@@ -84,7 +89,7 @@ class Reconstructor:
             raise ValueError(f"model file {str(path)!r} holds neither a Reconstructor nor a training checkpoint")
         generator = build_generator(cfg)
         generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
-        return cls(generator, cfg, meta, device, tta)
+        return cls(generator, cfg, meta, device, tta, self_check)
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
@@ -111,8 +116,26 @@ class Reconstructor:
 
     @torch.no_grad()
     def predict_maps_with_uncertainty(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """``(elevation maps, standard deviations in metres or None)``, each (B, 1, S, S)."""
+        """``(elevation maps, standard deviations in metres or None)``, each (B, 1, S, S).
+
+        With ``self_check`` each map keeps only the share of the net's correction that the
+        map's own scan supports (``inference/selfcheck.py``): the model's map of the scan with a
+        fifth of its observed cells hidden is compared there with two classical fills (its base
+        fill and the plain thin plate), and the map is the better fill plus that share."""
         scan, mask = scan.to(self.device), mask.to(self.device)
+        height, sigma = self._predict(scan, mask)
+        if not self.self_check:
+            return height, sigma
+        hidden = hidden_cells(mask)
+        thinned = mask * (~hidden).to(mask.dtype)
+        checked, _ = self._predict(scan * thinned, thinned)
+        fills_thinned = candidate_fills(self.generator.base_fill, scan * thinned, thinned)
+        choice = best_fill(fills_thinned, scan, hidden)
+        weight = correction_weight(checked, pick(fills_thinned, choice), scan, hidden)
+        fill = pick(candidate_fills(self.generator.base_fill, scan, mask), choice)
+        return fill + weight * (height - fill), sigma
+
+    def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         orientations = DIHEDRAL if self.tta else DIHEDRAL[:1]  # DIHEDRAL[0]: as the map is
         # all orientations as one batch (the generator is in eval mode: maps do not interact)
         condition = self.condition(scan, mask)

@@ -1,0 +1,87 @@
+"""The self-check: a map keeps the share of the net's correction its own scan supports."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from warp_terrain.inference.reconstructor import Reconstructor
+from warp_terrain.inference.selfcheck import CHECK_SHARE, best_fill, correction_weight, hidden_cells, pick
+from warp_terrain.models.config import ModelConfig
+from warp_terrain.models.fill import FillResidualGenerator
+
+
+def test_hidden_cells_are_a_fixed_share_of_the_observed_ones():
+    mask = (torch.rand(2, 1, 121, 121, generator=torch.Generator().manual_seed(1)) < 0.4).float()
+    hidden = hidden_cells(mask)
+    assert torch.equal(hidden, hidden_cells(mask))  # the same scan, the same check
+    assert not (hidden & (mask == 0)).any()
+    share = float(hidden.sum() / mask.sum())
+    assert abs(share - CHECK_SHARE) < 0.01
+
+
+def test_correction_weight_is_the_least_squares_share_clamped():
+    fill = torch.zeros(4, 1, 8, 8)
+    d = torch.randn(4, 1, 8, 8, generator=torch.Generator().manual_seed(2))
+    hidden = torch.zeros(4, 1, 8, 8, dtype=torch.bool)
+    hidden[..., ::2, ::3] = True
+    model = fill + d
+    measured = torch.stack([0.5 * d[0], torch.zeros_like(d[1]), 2.0 * d[2], -d[3]])
+    w = correction_weight(model, fill, measured, hidden).flatten()
+    torch.testing.assert_close(w, torch.tensor([0.5, 0.0, 1.0, 0.0]), rtol=0, atol=1e-6)
+    assert correction_weight(fill, fill, measured, hidden).abs().max() == 0  # no correction: weight 0
+
+
+def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells():
+    measured = torch.zeros(2, 1, 4, 4)
+    hidden = torch.ones(2, 1, 4, 4, dtype=torch.bool)
+    a = torch.stack([torch.full((1, 4, 4), 0.1), torch.full((1, 4, 4), 0.5)])  # candidate 0 per map
+    b = torch.stack([torch.full((1, 4, 4), 0.3), torch.full((1, 4, 4), -0.2)])  # candidate 1 per map
+    choice = best_fill(torch.stack([a, b]), measured, hidden)
+    assert choice.tolist() == [0, 1]
+    torch.testing.assert_close(pick(torch.stack([a, b]), choice), torch.stack([a[0], b[1]]))
+
+
+class Offset(torch.nn.Module):
+    """A 'net' whose correction is a constant (in the generator's scaled units)."""
+
+    def __init__(self, value: float):
+        super().__init__()
+        self.value = value
+
+    def forward(self, x):
+        return torch.full_like(x[:, :1], self.value)
+
+
+def plane_scan(size: int = 48):
+    r, c = torch.meshgrid(torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij")
+    z = (0.02 * r - 0.01 * c - 1.8)[None, None]
+    mask = ((r + 2 * c) % 5 == 0).float()[None, None]
+    return z * mask, mask, z
+
+
+def reconstructor(value: float, self_check: bool) -> Reconstructor:
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, base_fill="plane_biharmonic", height_reference="plane")
+    generator = FillResidualGenerator(Offset(value), base="plane_biharmonic", reference="plane")
+    return Reconstructor(generator, cfg, device="cpu", tta=False, self_check=self_check)
+
+
+def test_a_correction_the_scan_refutes_is_switched_off():
+    """On a plane every classical fill is right; a model that lifts the map by 1 m is wrong on
+    the hidden cells, so the checked map is the fill (the plane), the unchecked one 1 m off."""
+    scan, mask, truth = plane_scan()
+    unchecked = reconstructor(1.0, self_check=False).predict_maps(scan, mask)
+    torch.testing.assert_close(unchecked, truth + 1.0, rtol=0, atol=1e-4)  # the plane fill of a plane is exact
+    checked = reconstructor(1.0, self_check=True).predict_maps(scan, mask)
+    assert float((checked - truth).abs().max()) < 0.01
+
+
+def test_a_correction_the_scan_supports_is_kept():
+    """The fill of a scan whose hidden cells sit 0.3 m above the plane errs there; a model
+    that adds exactly 0.3 m everywhere is right on them and is kept whole."""
+    scan, mask, truth = plane_scan()
+    hidden = hidden_cells(mask)
+    raised = scan + 0.3 * hidden.float()
+    checked = reconstructor(0.3, self_check=True).predict_maps(raised, mask)
+    unchecked = reconstructor(0.3, self_check=False).predict_maps(raised, mask)
+    np.testing.assert_allclose(checked.numpy(), unchecked.numpy(), rtol=0, atol=1e-5)

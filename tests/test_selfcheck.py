@@ -85,3 +85,22 @@ def test_a_correction_the_scan_supports_is_kept():
     checked = reconstructor(0.3, self_check=True).predict_maps(raised, mask)
     unchecked = reconstructor(0.3, self_check=False).predict_maps(raised, mask)
     np.testing.assert_allclose(checked.numpy(), unchecked.numpy(), rtol=0, atol=1e-5)
+
+
+def test_package_model_records_the_self_check_and_refuses_it_without_a_fill(tmp_path):
+    import pytest
+
+    from warp_terrain.evaluation.calibrate import package_model
+    from warp_terrain.models.pix2pix import build_generator
+
+    for residual, name in ((True, "residual.pt"), (False, "plain.pt")):
+        cfg = ModelConfig(name="unet", in_channels=2, residual=residual, ngf=4, unet_depth=3).validate()
+        Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / name)
+    out = package_model(tmp_path / "residual.pt", tmp_path / "checked.pt", calibrate=0, self_check=True)
+    assert out["self_check"] is True
+    assert Reconstructor.load(tmp_path / "checked.pt", device="cpu").self_check
+    assert not Reconstructor.load(tmp_path / "checked.pt", device="cpu", self_check=False).self_check
+    assert not Reconstructor.load(tmp_path / "residual.pt", device="cpu").self_check  # off unless the file says so
+    with pytest.raises(ValueError, match="self_check needs a fill-residual model"):
+        package_model(tmp_path / "plain.pt", tmp_path / "x.pt", calibrate=0, self_check=True)
+    assert not (tmp_path / "x.pt").exists()

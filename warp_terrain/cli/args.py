@@ -67,6 +67,14 @@ def _add_model(p: argparse.ArgumentParser) -> None:
                    help="a Reconstructor file or training checkpoint (default: the model shipped in the package)")
 
 
+def _add_self_check(p: argparse.ArgumentParser) -> None:
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--self-check", dest="self_check", action="store_true", default=None,
+                       help="check every map on its own scan (a fifth of its observed cells hidden) and keep only the share "
+                            "of the model's correction they support, else the better classical fill (default: as the model file says)")
+    group.add_argument("--no-self-check", dest="self_check", action="store_false", help="never check: the model's maps as they are")
+
+
 def _add_tta(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-tta", dest="tta", action="store_false",
                    help="one prediction per map instead of the average over its 8 quarter turns and mirror images")

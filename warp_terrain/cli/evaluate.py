@@ -6,7 +6,7 @@ import json
 import sys
 
 from ..core.atomic import atomic_open
-from .args import _add_device, _add_tta, _baseline_names, _noise_levels, _positive_int
+from .args import _add_device, _add_self_check, _add_tta, _baseline_names, _noise_levels, _positive_int
 from .progress import _add_quiet, reporters
 
 
@@ -19,6 +19,7 @@ def add_evaluate(sub) -> None:
     p.add_argument("--checkpoint", default=None, metavar="PATH", help="a training checkpoint (checkpoints/best.pt) or Reconstructor file: evaluate its model beside the baselines")
     p.add_argument("--pretrained", action="store_true", help="evaluate the model shipped in the package beside the baselines")
     _add_tta(p)
+    _add_self_check(p)
     p.add_argument("--robustness", action="store_true",
                    help="instead, score on settings outside the training ranges and on real DEM terrain (matplotlib's sample DEM)")
     p.add_argument("--real", action="store_true",
@@ -61,7 +62,7 @@ def cmd_evaluate(args) -> int:
     if args.checkpoint is not None and args.pretrained:
         raise ValueError(f"--checkpoint {args.checkpoint!r} and --pretrained name two models: give one")
     if args.checkpoint is not None or args.pretrained:
-        predictor = load_predictor(args.checkpoint, device=args.device, tta=args.tta)
+        predictor = load_predictor(args.checkpoint, device=args.device, tta=args.tta, self_check=args.self_check)
         model_info = predictor.info
         predictors["model"] = predictor
     if not predictors:

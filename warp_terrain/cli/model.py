@@ -249,6 +249,8 @@ def add_package_model(sub) -> None:
     p.add_argument("--calibrate", type=_non_negative_int, default=256, metavar="N",
                    help="fit the uncertainty's scale on N validation pairs of the run's own data settings "
                         "(default 256; 0 skips; models without an uncertainty head skip it)")
+    p.add_argument("--self-check", action="store_true",
+                   help="the file's maps are checked on their own scans by default (Reconstructor self_check; fill-residual models only)")
     _add_device(p)
     p.set_defaults(func=cmd_package_model)
 
@@ -261,5 +263,5 @@ def cmd_package_model(args) -> int:
     out = Path(args.out)
     if not out.resolve().parent.is_dir():
         raise ValueError(f"--out {str(out)!r}: the folder does not exist")
-    print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device)))
+    print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device, self_check=args.self_check)))
     return 0

@@ -52,25 +52,32 @@ def fit_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str = "cpu", c
     return math.sqrt(total / cells)
 
 
-def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None) -> dict:
+def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
     validation pairs of the run's own data settings (:func:`fit_sigma_scale`).
 
-    Returns ``{"out", "bytes", "step", "sigma_scale"}`` (``sigma_scale`` None if not fitted).
+    ``self_check``: the file asks ``Reconstructor`` to check every map on its own scan
+    (``meta["self_check"]``; only a fill-residual generator has the fills to fall back to).
+
+    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check"}`` (``sigma_scale`` None if not fitted).
     """
     if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
         raise ValueError(f"calibrate={calibrate!r}: must be an integer >= 0")
     out = Path(out)
     if not out.resolve().parent.is_dir():
         raise ValueError(f"out={str(out)!r}: the folder does not exist")
-    rec = Reconstructor.load(checkpoint, device=device)
+    rec = Reconstructor.load(checkpoint, device=device, self_check=False)
+    if self_check and not hasattr(rec.generator, "base_fill"):
+        raise ValueError(f"{str(checkpoint)!r}: self_check needs a fill-residual model (model.residual=true)")
     if calibrate and rec.has_uncertainty:
         run = rec.meta.get("config") or {}
         if not all(key in run for key in ("terrain", "lidar", "data")):
             raise ValueError(f"{str(checkpoint)!r}: holds no run config to calibrate on (use --calibrate 0)")
         sim = as_sim_config({key: run[key] for key in ("terrain", "lidar", "data")})
         rec.meta["sigma_scale"] = fit_sigma_scale(rec, sim, calibrate, device=rec.device)
+    rec.meta["self_check"] = bool(self_check)
     rec.save(out)
-    return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale")}
+    return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale"),
+            "self_check": bool(self_check)}

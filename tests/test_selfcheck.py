@@ -104,3 +104,8 @@ def test_package_model_records_the_self_check_and_refuses_it_without_a_fill(tmp_
     with pytest.raises(ValueError, match="self_check needs a fill-residual model"):
         package_model(tmp_path / "plain.pt", tmp_path / "x.pt", calibrate=0, self_check=True)
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_the_shipped_model_checks_itself():
+    assert Reconstructor.load(device="cpu").self_check
+    assert not Reconstructor.load(device="cpu", self_check=False).self_check

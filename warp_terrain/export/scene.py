@@ -2,25 +2,13 @@
 
 from __future__ import annotations
 
-import copy
 import os
 from pathlib import Path
 
 from ..inference.predictor import Predictor
 from ..sim import SimConfig, generate_batch, resolve_device
+from ..sim.batch import unaugmented
 from .usd import check_usd_path, export_usd
-
-
-def _unaugmented(sim: SimConfig) -> SimConfig:
-    """A validated copy of ``sim`` whose points and maps keep the terrain's orientation."""
-    if not isinstance(sim, SimConfig):
-        raise ValueError(f"sim: expected a SimConfig, got {type(sim).__name__}")
-    sim = copy.deepcopy(sim)
-    sim.data.augment = False
-    if getattr(sim.data, "randomize", None) is not None:
-        sim.data.randomize.enabled = False
-    sim.validate()
-    return sim
 
 
 def export_sample(out: str | os.PathLike, sim: SimConfig, seed: int = 0, predictor: Predictor | None = None,
@@ -32,7 +20,7 @@ def export_sample(out: str | os.PathLike, sim: SimConfig, seed: int = 0, predict
     map. ``device``: where the sample is generated (default: CUDA if available, else CPU).
     Returns the written path; a bad ``out`` raises ValueError before any work."""
     out = check_usd_path(out)
-    sim = _unaugmented(sim)
+    sim = unaugmented(sim)
     device = resolve_device(device)
     batch = generate_batch(1, sim, seed=seed, device=device)
     kwargs = {}

@@ -216,6 +216,17 @@ def _extent(pts: np.ndarray):
     return Vt.Vec3fArray.FromNumpy(np.stack([pts.min(axis=0), pts.max(axis=0)]).astype(np.float32))
 
 
+def _new_stage(path: Path, documentation: str):
+    """``(stage, /World)``: an in-memory stage for ``path``'s format, Z up, metres, documented."""
+    stage = Usd.Stage.CreateInMemory(f"anon{path.suffix}")
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = _xform(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    stage.GetRootLayer().documentation = documentation
+    return stage, world
+
+
 def _xform(stage, path: str, translate=(0.0, 0.0, 0.0)):
 
     xf = UsdGeom.Xform.Define(stage, path)
@@ -329,15 +340,8 @@ def export_usd(
             raise ValueError(f"{name}={value!r}: not a matplotlib colormap")
 
 
-    stage = Usd.Stage.CreateInMemory(f"anon{path.suffix}")
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    world = _xform(stage, "/World")
-    stage.SetDefaultPrim(world.GetPrim())
-    stage.GetRootLayer().documentation = (
-        "warp-terrain export: terrain mesh (world frame), LIDAR points and reconstructed maps (sensor frame, "
-        "placed by the Sensor/Reconstruction Xforms); metres, Z up"
-    )
+    stage, world = _new_stage(path, "warp-terrain export: terrain mesh (world frame), LIDAR points and reconstructed maps "
+                              "(sensor frame, placed by the Sensor/Reconstruction Xforms); metres, Z up")
 
     terrain_x = (H - 1) * cell
     terrain_y = (W - 1) * cell
@@ -434,13 +438,8 @@ def export_reconstruction(path, height, cell, points=None, *, mask=None, uncerta
     if cmap not in matplotlib.colormaps:
         raise ValueError(f"cmap={cmap!r}: not a matplotlib colormap")
 
-    stage = Usd.Stage.CreateInMemory(f"anon{path.suffix}")
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    world = _xform(stage, "/World")
-    stage.SetDefaultPrim(world.GetPrim())
-    stage.GetRootLayer().documentation = ("warp-terrain reconstruct: a reconstructed elevation map and the LIDAR points "
-                                          "it was made from, both in the sensor frame; metres, Z up")
+    stage, world = _new_stage(path, "warp-terrain reconstruct: a reconstructed elevation map and the LIDAR points "
+                              "it was made from, both in the sensor frame; metres, Z up")
     lo, hi = float(h.min()), float(h.max())
     if pts is not None:
         _xform(stage, "/World/Sensor")

@@ -18,7 +18,6 @@ are named ``NODE_NAMES``; ``LAYERS`` says which nodes each GUI toggle shows or h
 
 from __future__ import annotations
 
-import copy
 import json
 import os
 import struct
@@ -32,6 +31,7 @@ import torch
 from ..core.geometry import MapGeometry
 from ..inference.predictor import Predictor
 from ..sim import SimConfig, generate_batch, resolve_device
+from ..sim.batch import unaugmented
 
 #: colour maps: heights, and the per-cell sigma / error (as in the reconstruct PNG)
 HEIGHT_CMAP = "viridis"
@@ -266,13 +266,7 @@ def simulated_samples(sim: SimConfig, seed: int = 0, count: int = 1, predictor: 
         raise ValueError(f"seed={seed!r}: must be an integer")
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"count={count!r}: must be an integer >= 1")
-    if not isinstance(sim, SimConfig):
-        raise ValueError(f"sim: expected a SimConfig, got {type(sim).__name__}")
-    sim = copy.deepcopy(sim)
-    sim.data.augment = False
-    if getattr(sim.data, "randomize", None) is not None:
-        sim.data.randomize.enabled = False
-    sim.validate()
+    sim = unaugmented(sim)
     device = resolve_device(device)
     batch = generate_batch(int(count), sim, seed=int(seed), device=device)
     prediction = sigma = None

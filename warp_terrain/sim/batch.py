@@ -6,6 +6,7 @@ handed to torch with ``wp.to_torch``, sharing memory with the Warp arrays (no co
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import dataclass, field
 
@@ -141,6 +142,18 @@ def as_sim_config(cfg, files: bool = True) -> SimConfig:
             picked = {k: cfg[k] for k in sections if k in cfg}
         sim = build(SimConfig, picked)
     sim.validate(files)
+    return sim
+
+
+def unaugmented(sim: SimConfig) -> SimConfig:
+    """A validated copy of ``sim`` whose points and maps keep the terrain's orientation: no
+    augmentation, no domain randomisation (for exports and views of one sample as generated)."""
+    if not isinstance(sim, SimConfig):
+        raise ValueError(f"sim: expected a SimConfig, got {type(sim).__name__}")
+    sim = copy.deepcopy(sim)
+    sim.data.augment = False
+    sim.data.randomize.enabled = False
+    sim.validate()
     return sim
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.inference.selfcheck import CHECK_SHARE, best_fill, correction_weight, hidden_cells, pick
+from warp_terrain.inference.selfcheck import CHECK_SHARE, best_fill, candidate_fills, chosen_fill, correction_weight, hidden_cells, pick
 from warp_terrain.models.config import ModelConfig
 from warp_terrain.models.fill import FillResidualGenerator
 
@@ -40,6 +40,32 @@ def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells()
     choice = best_fill(torch.stack([a, b]), measured, hidden)
     assert choice.tolist() == [0, 1]
     torch.testing.assert_close(pick(torch.stack([a, b]), choice), torch.stack([a[0], b[1]]))
+
+
+def test_chosen_fill_solves_the_thin_plate_only_for_the_maps_that_chose_it():
+    g = torch.Generator().manual_seed(3)
+    scan = torch.randn(3, 1, 24, 24, generator=g)
+    mask = (torch.rand(3, 1, 24, 24, generator=g) < 0.3).float()
+    scan = scan * mask
+    base = torch.full_like(scan, 7.0)  # stands for the model's base fill: any surface
+    for index in ([0, 0, 0], [1, 0, 1], [1, 1, 1]):
+        index = torch.tensor(index)
+        want = pick(candidate_fills(base, scan, mask), index)
+        got = chosen_fill(base, scan, mask, index)
+        assert torch.equal(got, want), index
+    assert chosen_fill(base, scan, mask, torch.zeros(3, dtype=torch.long)) is base  # nothing solved
+
+
+def test_the_generator_given_its_own_base_fill_returns_what_it_computes():
+    g = torch.Generator().manual_seed(4)
+    scan = torch.randn(2, 1, 32, 32, generator=g)
+    mask = (torch.rand(2, 1, 32, 32, generator=g) < 0.3).float()
+    generator = FillResidualGenerator(torch.nn.Conv2d(2, 1, 3, padding=1), base="plane_biharmonic", reference="plane").eval()
+    condition = torch.cat([scan * mask, mask], dim=1)
+    with torch.no_grad():
+        want = generator(condition)
+        assert torch.equal(generator(condition, fill=generator.base_fill(scan * mask, mask)), want)
+        assert not torch.equal(generator(condition, fill=torch.zeros_like(scan)), want)  # the fill given is the one used
 
 
 class Offset(torch.nn.Module):

@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import best_fill, candidate_fills, correction_weight, hidden_cells, pick
+from .selfcheck import best_fill, candidate_fills, chosen_fill, correction_weight, hidden_cells, pick
 
 PRETRAINED = "reconstructor.pt"
 
@@ -123,23 +123,32 @@ class Reconstructor:
         fifth of its observed cells hidden is compared there with two classical fills (its base
         fill and the plain thin plate), and the map is the better fill plus that share."""
         scan, mask = scan.to(self.device), mask.to(self.device)
-        height, sigma = self._predict(scan, mask)
+        height, sigma, base = self._predict(scan, mask)
         if not self.self_check:
             return height, sigma
         hidden = hidden_cells(mask)
         thinned = mask * (~hidden).to(mask.dtype)
-        checked, _ = self._predict(scan * thinned, thinned)
-        fills_thinned = candidate_fills(self.generator.base_fill, scan * thinned, thinned)
+        checked, _, base_thinned = self._predict(scan * thinned, thinned)
+        fills_thinned = candidate_fills(base_thinned, scan * thinned, thinned)
         choice = best_fill(fills_thinned, scan, hidden)
         weight = correction_weight(checked, pick(fills_thinned, choice), scan, hidden)
-        fill = pick(candidate_fills(self.generator.base_fill, scan, mask), choice)
+        fill = chosen_fill(base, scan, mask, choice)
         return fill + weight * (height - fill), sigma
 
-    def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """``(height, sigma, base)``: the generator's maps averaged over the orientations, and its
+        base fill of the maps as they are (None for a generator without one), which the
+        self-check reuses instead of solving it again."""
         orientations = DIHEDRAL if self.tta else DIHEDRAL[:1]  # DIHEDRAL[0]: as the map is
         # all orientations as one batch (the generator is in eval mode: maps do not interact)
         condition = self.condition(scan, mask)
-        outputs = self.generator(torch.cat([_orient(condition, turns, mirror) for turns, mirror in orientations]))
+        turned = torch.cat([_orient(condition, turns, mirror) for turns, mirror in orientations])
+        base = None
+        if hasattr(self.generator, "base_fill"):
+            fills = self.generator.base_fill(turned[:, :1], turned[:, 1:2])
+            outputs, base = self.generator(turned, fill=fills), fills[: scan.shape[0]]
+        else:
+            outputs = self.generator(turned)
         heights, variances = [], []
         for (turns, mirror), output in zip(orientations, outputs.chunk(len(orientations))):
             height, log_variance = split_output(_unorient(output, turns, mirror), self.has_uncertainty)
@@ -147,7 +156,8 @@ class Reconstructor:
             if log_variance is not None:
                 variances.append(log_variance.exp())
         height = torch.stack(heights).mean(dim=0)
-        return height, self.sigma_scale * torch.stack(variances).mean(dim=0).sqrt() if variances else None
+        sigma = self.sigma_scale * torch.stack(variances).mean(dim=0).sqrt() if variances else None
+        return height, sigma, base
 
     @property
     def geometry(self) -> MapGeometry:

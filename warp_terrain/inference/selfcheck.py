@@ -18,8 +18,6 @@ every map, at the cost of a second pass on the thinned scan.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import torch
 
 from ..models.biharmonic import biharmonic_fill
@@ -47,9 +45,20 @@ def correction_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.T
     return torch.where(den > 0, num / den.clamp_min(1e-30), torch.zeros_like(den)).clamp(0.0, 1.0)
 
 
-def candidate_fills(base_fill: Callable, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """(K, B, 1, S, S): the model's base fill and the plain thin plate of the same scan."""
-    return torch.stack([base_fill(scan, mask), biharmonic_fill(scan, mask)])
+def candidate_fills(base: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(K, B, 1, S, S): the model's base fill ``base`` of the scan and the plain thin plate of it."""
+    return torch.stack([base, biharmonic_fill(scan, mask)])
+
+
+def chosen_fill(base: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """(B, 1, S, S): ``pick(candidate_fills(base, scan, mask), index)``, the thin plate solved only
+    for the maps that chose it (candidate 1): one solve less per map that keeps its base fill."""
+    thin = index == 1
+    if not bool(thin.any()):
+        return base
+    out = base.clone()
+    out[thin] = biharmonic_fill(scan[thin], mask[thin])
+    return out
 
 
 def best_fill(candidates: torch.Tensor, measured: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:

@@ -125,9 +125,11 @@ class FillResidualGenerator(nn.Module):
                 return biharmonic_fill(scan - plane, mask) + plane
             return biharmonic_fill(scan, mask) if self.base == "biharmonic" else push_pull_fill(scan, mask)
 
-    def forward(self, condition: torch.Tensor) -> torch.Tensor:
+    def forward(self, condition: torch.Tensor, fill: torch.Tensor | None = None) -> torch.Tensor:
+        """``fill``: the base fill of this condition if the caller has it already (the
+        Reconstructor computes it once for the eight orientations and the self-check)."""
         scan, mask = condition[:, :1], condition[:, 1:2]
-        fill = self.base_fill(scan, mask)
+        fill = self.base_fill(scan, mask) if fill is None else fill
         reference = height_reference(scan, mask, self.reference)
         if self.height_scale_min > 0:
             scale = observed_spread(scan, mask, reference, self.height_scale_min)

@@ -1,0 +1,131 @@
+"""Boundaries and exact answers of the metrics, the classical fills, the loss weights and output
+paths: a cell exactly on a threshold or a radius, the fewest cells a method needs, per-map
+normalisation, the method each fill names. Written against surviving mutants of `make mutation`."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from warp_terrain.core.paths import file_name, output_path
+from warp_terrain.evaluation.baselines import INPAINT_RADIUS, linear_fill, navier_stokes_fill, telea_fill
+from warp_terrain.evaluation.metrics import obstacle_iou, pit_recall, range_cells
+from warp_terrain.models.fill import fill_relative_weight, unobserved_weight_map
+
+
+# ------------------------------------------------------------------------------ metrics
+def test_range_cells_includes_cells_exactly_on_the_radius():
+    # 5 cells of 0.5 m: centres at -1, -0.5, 0, 0.5, 1 m; radius 1 m holds 13 of them (x^2 + y^2 <= 1)
+    assert int(range_cells(5, 0.5, 1.0).sum()) == 13
+    # 0.1 m cells, radius 0.3 m: (3 * 0.1)^2 is on the circle in float64 (it is not in float32)
+    disc = range_cells(7, 0.1, 0.3)[0, 0]
+    assert bool(disc[3, 0]) and bool(disc[0, 3]) and bool(disc[6, 3]) and not bool(disc[0, 0])
+    assert range_cells(1, 0.25).tolist() == [[[[True]]]]  # one cell: the smallest map
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    ((0, 0.25), "map_size=0: must be an integer >= 1"),
+    ((2.5, 0.25), "map_size=2.5: must be an integer >= 1"),
+    ((5, 0.0), "map_cell=0.0: must be a finite number > 0"),
+    ((5, 0.25, 0.0), "max_range=0.0: must be > 0"),
+])
+def test_range_cells_refuses_bad_arguments_by_name(args, message):
+    with pytest.raises(ValueError) as err:
+        range_cells(*args)
+    assert str(err.value) == message
+
+
+def test_obstacles_and_pits_count_only_cells_strictly_beyond_the_threshold():
+    ground = torch.zeros(1, 1, 1, 4)
+    target = torch.tensor([0.25, 0.5, -0.25, -0.5]).view(1, 1, 1, 4)  # on the threshold, above, on, below
+    # prediction: finds the 0.5 m obstacle, puts a 0.25 m one where the truth is 0.25 m (not an obstacle)
+    prediction = torch.tensor([0.25, 0.5, -0.125, -0.25]).view(1, 1, 1, 4)
+    assert obstacle_iou(prediction, target, ground, threshold=0.25) == 1.0  # only cell 1, in both
+    # one pit cell (cell 3: 0.5 below); found where the prediction is more than 0.125 below: cell 3 is (0.25)
+    assert pit_recall(prediction, target, ground, threshold=0.25) == 1.0
+    shallow = prediction.clone()
+    shallow[..., 3] = -0.125  # exactly half the threshold: not found
+    assert pit_recall(shallow, target, ground, threshold=0.25) == 0.0
+    for metric in (obstacle_iou, pit_recall):
+        assert np.isnan(metric(ground, ground, ground, threshold=0.25))  # nothing to find
+        with pytest.raises(ValueError) as err:
+            metric(prediction, target, ground[..., :3], threshold=0.25)
+        assert str(err.value) == "prediction (1, 1, 1, 4), target (1, 1, 1, 4) and ground (1, 1, 1, 3) must match"
+
+
+# ------------------------------------------------------------------------------ classical fills
+def test_linear_fill_reproduces_a_plane_from_exactly_three_cells():
+    i, j = np.indices((9, 9), dtype=np.float64)
+    plane = torch.from_numpy(0.3 * i - 0.2 * j + 1.5).float()[None, None]
+    mask = torch.zeros(1, 1, 9, 9)
+    mask[0, 0, 0, 0] = mask[0, 0, 0, 8] = mask[0, 0, 8, 0] = 1.0  # the triangle covers the upper-left half
+    out = linear_fill(plane * mask, mask)[0, 0]
+    inside = torch.from_numpy(i + j <= 8)
+    torch.testing.assert_close(out[inside], plane[0, 0][inside], rtol=0, atol=1e-5)
+
+
+def _opencv(z: np.ndarray, known: np.ndarray, flags: int) -> np.ndarray:
+    """OpenCV's inpainting of heights as the fills document it: observed range onto 0..65535
+    (at least 1 m), one hole cell padded all round, radius ``INPAINT_RADIUS``."""
+    lo, span = z[known].min(), max(z[known].max() - z[known].min(), 1.0)
+    img = np.pad(np.where(known, (z - lo) * 65535.0 / span, 0.0).astype(np.float32), 1)
+    holes = np.pad((~known).astype(np.uint8), 1, constant_values=1)
+    return cv2.inpaint(img, holes, float(INPAINT_RADIUS), flags)[1:-1, 1:-1].astype(np.float64) * span / 65535.0 + lo
+
+
+def test_telea_and_navier_stokes_are_opencvs_methods_at_the_documented_radius():
+    rng = np.random.default_rng(5)
+    z = np.cumsum(rng.normal(size=(24, 24)), axis=0) * 0.3 + 40.0  # 40 m up, a few metres of relief
+    known = rng.random((24, 24)) < 0.3
+    scan, mask = torch.from_numpy(np.where(known, z, 0.0)).float()[None, None], torch.from_numpy(known).float()[None, None]
+    z32 = scan[0, 0].double().numpy()
+    for fill, flags, other in ((telea_fill, cv2.INPAINT_TELEA, cv2.INPAINT_NS), (navier_stokes_fill, cv2.INPAINT_NS, cv2.INPAINT_TELEA)):
+        want = np.where(known, z32, _opencv(z32, known, flags))
+        got = fill(scan, mask)[0, 0].double().numpy()
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-4)
+        assert np.abs(got - np.where(known, z32, _opencv(z32, known, other))).max() > 0.01  # the other method differs
+
+
+# ------------------------------------------------------------------------------ loss weights
+def test_unobserved_weights_average_one_on_every_map():
+    mask = torch.zeros(2, 1, 3, 5)
+    mask[0, 0, 0, :] = 1.0  # 5 of 15 observed
+    mask[1, 0, :, :4] = 1.0  # 12 of 15 observed
+    w = unobserved_weight_map(mask, 3.0)
+    assert w.shape == mask.shape
+    torch.testing.assert_close(w.mean(dim=(1, 2, 3)), torch.ones(2), rtol=0, atol=1e-6)
+    # map 0: observed 1, unobserved 3, mean (5 + 30) / 15 = 7/3
+    torch.testing.assert_close(w[0, 0, 0, 0], torch.tensor(3.0 / 7.0), rtol=0, atol=1e-6)
+    torch.testing.assert_close(w[0, 0, 1, 0], torch.tensor(9.0 / 7.0), rtol=0, atol=1e-6)
+
+
+def test_fill_relative_weights_are_the_inverse_base_error_normalised():
+    mask = torch.ones(3, 1, 4, 4)
+    mask[:2, 0, 1:3, 1:3] = 0.0  # maps 0 and 1: four unobserved cells
+    mask[2, 0, 0, 0] = 0.0  # map 2: a single unobserved cell
+    target = torch.full((3, 1, 4, 4), 2.0)
+    base = target.clone()
+    base[0] += 0.1  # mean absolute error 0.1 on its unobserved cells
+    base[1] -= 0.4  # 0.4
+    base[2, 0, 0, 0] += 0.2  # 0.2, on one cell
+    base[2, 0, 3, 3] += 9.0  # an observed cell: never counted
+    w = fill_relative_weight(base, target, mask, floor=0.01).flatten()
+    inverse = torch.tensor([10.0, 2.5, 5.0])
+    torch.testing.assert_close(w, inverse / inverse.mean(), rtol=1e-5, atol=0)
+
+
+# ------------------------------------------------------------------------------ output paths
+def test_file_names_lose_only_leading_dots_and_unsafe_runs():
+    assert file_name("XX.yaml") == "XX.yaml"
+    assert file_name("..hidden") == "hidden"
+    assert file_name("a b/c") == "a_b_c"
+    assert file_name("...") == "_"
+
+
+def test_output_path_names_the_escaping_part_and_the_folder(tmp_path):
+    with pytest.raises(ValueError) as err:
+        output_path(tmp_path, "..", "x.png")
+    assert str(err.value) == f"{'../x.png'!r}: output path escapes its folder {str(tmp_path)!r}"
+    assert output_path(tmp_path, "a", "b.png") == tmp_path / "a" / "b.png"

@@ -11,7 +11,7 @@ import torch
 
 from warp_terrain.core.paths import file_name, output_path
 from warp_terrain.evaluation.baselines import INPAINT_RADIUS, linear_fill, navier_stokes_fill, telea_fill
-from warp_terrain.evaluation.metrics import obstacle_iou, pit_recall, range_cells
+from warp_terrain.evaluation.metrics import calibration, error_metrics, obstacle_iou, pit_recall, range_cells
 from warp_terrain.models.fill import fill_relative_weight, unobserved_weight_map
 
 
@@ -53,6 +53,29 @@ def test_obstacles_and_pits_count_only_cells_strictly_beyond_the_threshold():
         with pytest.raises(ValueError) as err:
             metric(prediction, target, ground[..., :3], threshold=0.25)
         assert str(err.value) == "prediction (1, 1, 1, 4), target (1, 1, 1, 4) and ground (1, 1, 1, 3) must match"
+
+
+def test_error_metrics_score_the_in_range_cells_given_and_name_a_mismatched_mask():
+    target = torch.zeros(1, 1, 2, 2)
+    prediction = torch.tensor([[1.0, 2.0], [3.0, 4.0]]).view(1, 1, 2, 2)
+    mask = torch.tensor([[1.0, 0.0], [0.0, 0.0]]).view(1, 1, 2, 2)
+    in_range = torch.tensor([[False, True], [False, True]]).view(1, 1, 2, 2)
+    m = error_metrics(prediction, target, mask, in_range)
+    assert m["mae_observed"] == 1.0 and m["mae_unobserved"] == 3.0
+    assert m["mae_in_range"] == 3.0 and m["rmse_in_range"] == pytest.approx(10.0**0.5, rel=1e-12)  # cells 2 and 4
+    assert error_metrics(prediction, target, mask)["mae_in_range"] == 2.5  # None: every cell
+    with pytest.raises(ValueError) as err:
+        error_metrics(prediction, target, mask[..., :1])
+    assert str(err.value) == "prediction (1, 1, 2, 2), target (1, 1, 2, 2) and mask (1, 1, 2, 1) must match"
+
+
+def test_calibration_with_no_cell_is_nan_under_every_key_and_names_a_mismatched_sigma():
+    z = torch.zeros(1, 1, 2, 2)
+    out = calibration(z, z + 1.0, z, torch.zeros(1, 1, 2, 2, dtype=torch.bool))
+    assert sorted(out) == ["rms_sigma", "within_1sigma", "within_2sigma"] and all(np.isnan(v) for v in out.values())
+    with pytest.raises(ValueError) as err:
+        calibration(z, z[..., :1], z, z > 0)
+    assert str(err.value) == "prediction (1, 1, 2, 2), target (1, 1, 2, 2) and sigma (1, 1, 2, 1) must match"
 
 
 # ------------------------------------------------------------------------------ classical fills

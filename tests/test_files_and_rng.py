@@ -103,18 +103,23 @@ def test_per_map_fills_each_map_keeps_observed_cells_and_skips_empty_and_full_ma
 
     fill = _per_map(offset_fill)
     assert fill.__name__ == "offset_fill" and fill.__doc__ == offset_fill.__doc__
-    scan = torch.zeros(3, 1, 4, 4)
-    mask = torch.zeros(3, 1, 4, 4)
-    scan[0, 0, 0, :2], mask[0, 0, 0, :2] = torch.tensor([1.0, 3.0]), 1.0  # two cells: mean 2
-    scan[2], mask[2] = 5.0, 1.0  # every cell observed
+    scan = torch.zeros(4, 1, 4, 4)
+    mask = torch.zeros(4, 1, 4, 4)
+    scan[0], mask[0] = 5.0, 1.0  # every cell observed: returned as it is, fill not called
+    scan[1, 0, 0, :2], mask[1, 0, 0, :2] = torch.tensor([1.0, 3.0]), 1.0  # two cells: mean 2
+    # map 2: no observed cell (zeros); map 3 after it is filled all the same
+    scan[3, 0, 2, 2], mask[3, 0, 2, 2] = -1.0, 1.0
     out = fill(scan, mask)
-    assert calls == [2]  # called once: map 1 has no observed cell, map 2 no unobserved one
+    assert calls == [2, 1]
     assert out.dtype == torch.float32 and out.shape == scan.shape
-    want0 = torch.full((4, 4), 3.0)
-    want0[0, :2] = torch.tensor([1.0, 3.0])
-    assert torch.equal(out[0, 0], want0)
-    assert torch.equal(out[1, 0], torch.zeros(4, 4))
-    assert torch.equal(out[2, 0], torch.full((4, 4), 5.0))
+    assert torch.equal(out[0, 0], torch.full((4, 4), 5.0))
+    want1 = torch.full((4, 4), 3.0)
+    want1[0, :2] = torch.tensor([1.0, 3.0])
+    assert torch.equal(out[1, 0], want1)
+    assert torch.equal(out[2, 0], torch.zeros(4, 4))
+    want3 = torch.zeros(4, 4)
+    want3[2, 2] = -1.0
+    assert torch.equal(out[3, 0], want3)
     with pytest.raises(ValueError, match="mask"):
         fill(scan, mask[:, :, :3])
 

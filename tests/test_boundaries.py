@@ -19,9 +19,9 @@ from warp_terrain.models.fill import fill_relative_weight, unobserved_weight_map
 def test_range_cells_includes_cells_exactly_on_the_radius():
     # 5 cells of 0.5 m: centres at -1, -0.5, 0, 0.5, 1 m; radius 1 m holds 13 of them (x^2 + y^2 <= 1)
     assert int(range_cells(5, 0.5, 1.0).sum()) == 13
-    # 0.1 m cells, radius 0.3 m: (3 * 0.1)^2 is on the circle in float64 (it is not in float32)
-    disc = range_cells(7, 0.1, 0.3)[0, 0]
-    assert bool(disc[3, 0]) and bool(disc[0, 3]) and bool(disc[6, 3]) and not bool(disc[0, 0])
+    # 0.1 m cells, radius 0.1 m: the four neighbours of the centre are on the circle in float64
+    # (in float32 they fall outside: the centres are computed in float64)
+    assert range_cells(3, 0.1, 0.1)[0, 0].tolist() == [[False, True, False], [True, True, True], [False, True, False]]
     assert range_cells(1, 0.25).tolist() == [[[[True]]]]  # one cell: the smallest map
 
 

@@ -69,6 +69,16 @@ def test_error_metrics_score_the_in_range_cells_given_and_name_a_mismatched_mask
     assert str(err.value) == "prediction (1, 1, 2, 2), target (1, 1, 2, 2) and mask (1, 1, 2, 1) must match"
 
 
+def test_calibration_counts_an_error_of_exactly_one_or_two_sigma_as_within():
+    target = torch.zeros(1, 1, 1, 4)
+    prediction = torch.tensor([0.5, 1.0, -2.0, 3.0]).view(1, 1, 1, 4)
+    sigma = torch.tensor([1.0, 1.0, 1.0, 2.0]).view(1, 1, 1, 4)
+    out = calibration(prediction, sigma, target, torch.ones(1, 1, 1, 4, dtype=torch.bool))
+    assert out["within_1sigma"] == 0.5  # 0.5 and 1.0 (on the edge); not 2.0, not 3.0 (1.5 sigma)
+    assert out["within_2sigma"] == 1.0  # -2.0 is exactly two sigma
+    assert out["rms_sigma"] == pytest.approx(7.0**0.5 / 2.0, rel=1e-12)
+
+
 def test_calibration_with_no_cell_is_nan_under_every_key_and_names_a_mismatched_sigma():
     z = torch.zeros(1, 1, 2, 2)
     out = calibration(z, z + 1.0, z, torch.zeros(1, 1, 2, 2, dtype=torch.bool))

@@ -10,9 +10,11 @@ import pytest
 import torch
 
 from warp_terrain.core.paths import file_name, output_path
+from warp_terrain.core.structs import build
 from warp_terrain.evaluation.baselines import INPAINT_RADIUS, linear_fill, navier_stokes_fill, telea_fill
 from warp_terrain.evaluation.metrics import calibration, error_metrics, obstacle_iou, pit_recall, range_cells
 from warp_terrain.models.fill import fill_relative_weight, unobserved_weight_map
+from warp_terrain.sim.terrain import TerrainConfig
 
 
 # ------------------------------------------------------------------------------ metrics
@@ -162,3 +164,29 @@ def test_output_path_names_the_escaping_part_and_the_folder(tmp_path):
         output_path(tmp_path, "..", "x.png")
     assert str(err.value) == f"{'../x.png'!r}: output path escapes its folder {str(tmp_path)!r}"
     assert output_path(tmp_path, "a", "b.png") == tmp_path / "a" / "b.png"
+
+
+# ------------------------------------------------------------------------------ configs from any mapping
+class _DuckMapping:
+    """Keys and item access, not registered as a ``Mapping`` (as some config objects are)."""
+
+    def __init__(self, data):
+        self._data = data
+
+    def keys(self):
+        return self._data.keys()
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+
+def test_build_reads_any_object_with_keys_and_items_but_not_a_string():
+    cfg = build(TerrainConfig, _DuckMapping({"octaves": 3, "tilt": _DuckMapping({"enabled": True})}))
+    assert cfg.octaves == 3 and cfg.tilt.enabled is True and cfg.tilt.slope_max_deg == TerrainConfig().tilt.slope_max_deg
+
+    class Keyless:
+        def __getitem__(self, key):
+            return 1
+
+    for value in ("enabled", Keyless()):  # neither is a mapping: kept as the value given
+        assert build(TerrainConfig, {"tilt": value}).tilt is value

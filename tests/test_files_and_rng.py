@@ -95,14 +95,14 @@ def test_rng_state_survives_a_weights_only_file(tmp_path):
 def test_per_map_fills_each_map_keeps_observed_cells_and_skips_empty_and_full_maps():
     calls = []
 
-    def offset_fill(z, known):
+    def _offset_fill_(z, known):
         """A known 2-D fill: every cell the mean observed height plus 1."""
         calls.append(int(known.sum()))
         assert z.dtype == np.float64 and known.dtype == bool
         return np.full(z.shape, z[known].mean() + 1.0)
 
-    fill = _per_map(offset_fill)
-    assert fill.__name__ == "offset_fill" and fill.__doc__ == offset_fill.__doc__
+    fill = _per_map(_offset_fill_)
+    assert fill.__name__ == "offset_fill_" and fill.__doc__ == _offset_fill_.__doc__  # named as the fill, less its leading "_"
     scan = torch.zeros(4, 1, 4, 4)
     mask = torch.zeros(4, 1, 4, 4)
     scan[0], mask[0] = 5.0, 1.0  # every cell observed: returned as it is, fill not called

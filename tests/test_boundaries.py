@@ -14,7 +14,7 @@ from warp_terrain.core.structs import build
 from warp_terrain.evaluation.baselines import INPAINT_RADIUS, linear_fill, navier_stokes_fill, telea_fill
 from warp_terrain.evaluation.metrics import calibration, error_metrics, obstacle_iou, pit_recall, range_cells
 from warp_terrain.models.fill import fill_relative_weight, unobserved_weight_map
-from warp_terrain.sim.terrain import TerrainConfig
+from warp_terrain.sim.terrain import TerrainConfig, TiltConfig
 
 
 # ------------------------------------------------------------------------------ metrics
@@ -190,3 +190,6 @@ def test_build_reads_any_object_with_keys_and_items_but_not_a_string():
 
     for value in ("enabled", Keyless()):  # neither is a mapping: kept as the value given
         assert build(TerrainConfig, {"tilt": value}).tilt is value
+    given = TiltConfig(enabled=True, slope_max_deg=12.0)  # a dataclass: a copy, never shared
+    cfg = build(TerrainConfig, {"tilt": given})
+    assert cfg.tilt == given and cfg.tilt is not given

@@ -13,6 +13,7 @@ import sys
 import torch
 
 from warp_terrain.evaluation.baselines import BASELINES
+from warp_terrain.evaluation.metrics import masked_rmse
 from warp_terrain.evaluation.real import evaluate_real
 from warp_terrain.evaluation.testsets import make_eval_set
 from warp_terrain.inference.predictor import load_predictor
@@ -36,7 +37,7 @@ for setting in ("octave5", "octave3", "flat_cylinders", "negative_obstacles"):
         for name, f in predictors.items():
             out = f(ts.scan, ts.mask)
             out = out[0] if isinstance(out, tuple) else out
-            row[name] = float(((out.float() - ts.target)[unobserved] ** 2).mean().sqrt())
+            row[name] = masked_rmse(out.float(), ts.target, unobserved)
         synthetic[f"{setting}/{noise}"] = row
         print(setting, noise, {k: round(v, 4) for k, v in row.items()}, flush=True)
 out = os.path.join(os.path.dirname(__file__), "real_ablation_" + "_".join(a.split("=")[0] for a in sys.argv[1:]) + ".json")

@@ -128,8 +128,9 @@ class Reconstructor:
             return height, sigma
         hidden = hidden_cells(mask)
         thinned = mask * (~hidden).to(mask.dtype)
-        checked, _, base_thinned = self._predict(scan * thinned, thinned)
-        fills_thinned = candidate_fills(base_thinned, scan * thinned, thinned)
+        thinned_scan = scan * thinned
+        checked, _, base_thinned = self._predict(thinned_scan, thinned)
+        fills_thinned = candidate_fills(base_thinned, thinned_scan, thinned)
         choice = best_fill(fills_thinned, scan, hidden)
         weight = correction_weight(checked, pick(fills_thinned, choice), scan, hidden)
         fill = chosen_fill(base, scan, mask, choice)

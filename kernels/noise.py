@@ -108,21 +108,30 @@ def lattice_gradients(
     origin: wp.array2d(dtype=wp.vec2i),
     gradients: wp.array4d(dtype=wp.vec2),
 ):
-    """Gradient of lattice point ``origin[b, o] + (u, v)`` of octave ``o``'s noise field.
+    """Row ``u`` of octave ``o``'s gradient table: the gradient of lattice point
+    ``origin[b, o] + (u, v)`` of its noise field, for every ``v`` the octave needs.
 
     ``origin`` is one lattice cell below the grid's first vertex, so rounding in the row
-    kernel can never step below the table.
+    kernel can never step below the table. The table is sized for the finest octave; a coarser
+    one fills only the part its grid spans (the last vertex's cell, its far corner and one more
+    for rounding), and the row kernel never reads past it.
     """
-    b, o, u, v = wp.tid()
+    b, o, u = wp.tid()
     frequency = octave_frequency(lacunarity, o)
     x0 = vertex_coordinate(0, rows, cell, feature_size[b]) * frequency + offsets[b, o][0]
     y0 = vertex_coordinate(0, columns, cell, feature_size[b]) * frequency + offsets[b, o][1]
     corner = wp.vec2i(int(wp.floor(x0)) - 1, int(wp.floor(y0)) - 1)
-    if u == 0 and v == 0:
+    if u == 0:
         origin[b, o] = corner
-    point = wp.vec2(float(corner[0] + u), float(corner[1] + v))
-    curl = wp.curlnoise(fields[b, o], point, wp.uint32(1), 2.0, 0.5)  # (-dn/dy, dn/dx)
-    gradients[b, o, u, v] = wp.vec2(curl[1], -curl[0])
+    x1 = vertex_coordinate(rows - 1, rows, cell, feature_size[b]) * frequency + offsets[b, o][0]
+    y1 = vertex_coordinate(columns - 1, columns, cell, feature_size[b]) * frequency + offsets[b, o][1]
+    if u > int(wp.floor(x1)) - corner[0] + 2:
+        return
+    span = wp.min(int(wp.floor(y1)) - corner[1] + 3, gradients.shape[3])
+    for v in range(span):
+        point = wp.vec2(float(corner[0] + u), float(corner[1] + v))
+        curl = wp.curlnoise(fields[b, o], point, wp.uint32(1), 2.0, 0.5)  # (-dn/dy, dn/dx)
+        gradients[b, o, u, v] = wp.vec2(curl[1], -curl[0])
 
 
 @wp.kernel
@@ -169,8 +178,10 @@ def fractal_rows(
             c10 = float(0.0)
             c01 = float(0.0)
             c11 = float(0.0)
+            step = cell / feature_size[b] * frequency  # lattice units per vertex, no division per vertex
+            centre = 0.5 * float(columns - 1)
             for j in range(columns):
-                qy = vertex_coordinate(j, columns, cell, feature_size[b]) * frequency + offset[1]
+                qy = (float(j) - centre) * step + offset[1]
                 if qy >= edge:  # crossed a lattice line (qy grows with j)
                     fy = wp.floor(qy)
                     edge = fy + 1.0

@@ -63,6 +63,7 @@ def _per_vertex_wp_noise(batch, size, cfg, seed, feature_size):
     "terrain, feature_size",
     [
         (dict(octaves=5, feature_size=16.0, amplitude=1.5, cell=0.25), 16.0),  # every octave from the table
+        (dict(octaves=5, feature_size=8.0, amplitude=1.5, cell=0.25), 8.0),  # the bench: the finest octave 2 vertices/cell
         (dict(octaves=8, cell=0.125), [3.0, 10.0, 40.0]),  # fine octaves fall back to wp.noise; per-sample features
         (dict(octaves=3, cell=0.5, lacunarity=2.7, persistence=0.6), 40.0),
         (dict(octaves=4, cell=0.25, lacunarity=0.5), 1.0),  # lacunarity < 1: the first octave is the finest
@@ -74,6 +75,27 @@ def test_cpu_row_path_equals_wp_noise_per_vertex(terrain, feature_size):
     fast = make_heightfields(batch, 97, cfg, 5, "cpu", feature_size=feature_size).numpy()
     reference = _per_vertex_wp_noise(batch, 97, cfg, 5, feature_size)
     np.testing.assert_allclose(fast, reference, rtol=0, atol=1e-6 * cfg.amplitude)
+
+
+def test_cpu_row_path_reads_only_the_table_entries_it_writes(monkeypatch):
+    """The gradient table is sized for the finest octave and coarser octaves fill only their
+    own span: with every fresh Warp array poisoned with NaN, the heights are still the
+    reference's (a read past an octave's span would be NaN)."""
+    empty = wp.empty
+
+    def poisoned(shape, dtype=float, device=None, **kwargs):
+        out = empty(shape, dtype=dtype, device=device, **kwargs)
+        if dtype is wp.vec2:
+            out.fill_(wp.vec2(np.nan, np.nan))
+        elif dtype in (float, wp.float32):
+            out.fill_(np.nan)
+        return out
+
+    monkeypatch.setattr(wp, "empty", poisoned)
+    cfg = TerrainConfig(octaves=5, feature_size=8.0, amplitude=1.5, cell=0.25)
+    fast = make_heightfields(2, 121, cfg, 9, "cpu").numpy()
+    monkeypatch.setattr(wp, "empty", empty)
+    np.testing.assert_allclose(fast, _per_vertex_wp_noise(2, 121, cfg, 9, 8.0), rtol=0, atol=1e-6 * cfg.amplitude)
 
 
 def test_feature_size_is_in_metres():

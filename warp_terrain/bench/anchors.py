@@ -41,7 +41,7 @@ def noise_anchor(batch: int, size: int, cfg: TerrainConfig, repeats: int, ours_p
 
     Coordinates are metres (vertex (i, j) of field k at ``x = (i - (size-1)/2) * cell`` plus a
     per-field offset, so the 64 fields are 64 different terrains) and ``frequency = 1 /
-    feature_size``: the first octave has the same 16 m wavelength as ours, then ``octaves``
+    feature_size``: the first octave has the same wavelength as ours (8 m in NOISE), then ``octaves``
     octaves with the same lacunarity and gain. ``gen_from_coords`` is a single-threaded Cython
     loop; the float32 (2, N) coordinates exist before the clock, as our vertex grid does.
     """

@@ -20,7 +20,7 @@ def bench_noise(device=None, quick: bool = False, repeats: int | None = None, an
     device = resolve_device(device)
     batch, size = (8, 33) if quick else (64, 121)
     repeats = repeats or (2 if quick else 5)
-    cfg = TerrainConfig(name="bench", octaves=5, feature_size=16.0, amplitude=1.5, cell=0.25)
+    cfg = TerrainConfig(name="bench", octaves=5, feature_size=8.0, amplitude=1.5, cell=0.25)
     cfg.validate()
 
     out = {}

@@ -193,7 +193,7 @@ def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features:
         origin = wp.empty((batch, table), dtype=wp.vec2i, device=device)
         wp.launch(
             noise_kernels.lattice_gradients,
-            dim=gradients.shape,
+            dim=gradients.shape[:3],  # one thread per table row
             inputs=[fields_, offsets, cfg.cell, cfg.lacunarity, features, rows, columns],
             outputs=[origin, gradients],
             device=device,

@@ -37,6 +37,21 @@ def test_bench_quick_train_and_infer(capsys):
     assert "images/s" in table and "data wait" in table and "reconstruct(points)" in table
 
 
+def test_rays_times_the_public_cast_scans_on_its_threads_and_one(monkeypatch):
+    """RAYS' figure is ``cast_scans`` with its default CPU threads (two cores here), beside the
+    same scan as one launch; both give the same points."""
+    from warp_terrain.sim import threads
+
+    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
+    r = bench_rays("cpu", quick=True, anchor=False)
+    assert r["params"]["api"] == "cast_scans" and r["params"]["threads"] == 2
+    one = r["one_thread"]
+    assert one["equal_to_threads"] is True and one["rays_per_s"] > 0
+    assert one["rays_per_s"] == pytest.approx(r["params"]["rays"] / one["median_s"])
+    table = format_table({"environment": _env(), "results": {"rays": r}})
+    assert "cast_scans, 2 threads" in table and "equal to 2 threads: yes" in table
+
+
 def test_noise_anchor_runs_the_same_samples():
     pytest.importorskip("pyfastnoiselite")
     r = bench_noise("cpu", quick=True)

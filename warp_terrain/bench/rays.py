@@ -1,6 +1,7 @@
 """RAYS: an HDL-64E-like scan (64 x 2048 rays) over a 512x512, 0.1 m fBm heightfield ->
-``rays_per_s`` and the hit fraction, on the CPU also split over processes, with the Open3D
-anchor (:mod:`.anchors`)."""
+``rays_per_s`` and the hit fraction through the public ``cast_scans`` (on the CPU its default
+threads, ``sim/threads.py``), on the CPU also on one thread and split over processes, with the
+Open3D anchor (:mod:`.anchors`)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ import warp as wp
 
 from ..sim import TerrainConfig, lidar_preset, resolve_device
 from ..sim.parallel import ProcessTracer
-from ..sim.scan import trace
+from ..sim.scan import THREAD_MIN_RAYS, cast_scans, trace
 from ..sim.terrain import make_heightfields
+from ..sim.threads import split_threads
 from .anchors import rays_anchor
 from .harness import SEED, summarize, time_calls, workload_result
 
@@ -27,7 +29,9 @@ def bench_rays(device=None, quick: bool = False, repeats: int | None = None, anc
     the Open3D ``RaycastingScene`` anchor on the same triangles and rays where it is installed.
 
     The heightfield exists before the clock starts; the per-call max-height tile build inside
-    ``trace`` is timed, as it is part of every cast on a fresh terrain."""
+    the cast is timed, as it is part of every cast on a fresh terrain. The main figure is what a
+    user gets from ``cast_scans`` (its default threads on the CPU); ``one_thread`` is the same
+    scan as one launch."""
     device = resolve_device(device)
     size, cell = (128, 0.1) if quick else (512, 0.1)
     columns = 256 if quick else 2048
@@ -37,21 +41,32 @@ def bench_rays(device=None, quick: bool = False, repeats: int | None = None, anc
     terrain.validate()
     heights = make_heightfields(1, size, terrain, SEED, device)
     wp.synchronize_device(device)
+    heights_torch = wp.to_torch(heights)  # what a user hands cast_scans (zero-copy)
+    threads = split_threads(None, lidar.num_rays, THREAD_MIN_RAYS, device)
     out = {}
 
-    def run():  # reach 0: rays run to the heightfield's edge, as on the anchor's mesh
-        out["points"], out["sensor_z"] = trace(heights, cell, lidar, SEED, device, reach=0.0)
+    def run():  # cast_scans: rays run to the heightfield's edge (reach 0), as on the anchor's mesh
+        out["points"] = cast_scans(heights_torch, cell, lidar, SEED, device)
+
+    def run_one_thread():
+        out["one_thread"], out["sensor_z"] = trace(heights, cell, lidar, SEED, device, reach=0.0)
 
     timing = summarize(time_calls(run, device, repeats))
-    points = out["points"].numpy().reshape(-1, 3)
+    points = out["points"].cpu().numpy().reshape(-1, 3)
     hits = float(np.isfinite(points[:, 0]).mean())
     rays = lidar.num_rays
     rays_per_s = rays / timing["median_s"]
-    params = {"lidar": lidar.name, "channels": lidar.channels, "columns": lidar.columns, "rays": rays,
+    params = {"api": "cast_scans", "threads": threads, "lidar": lidar.name, "channels": lidar.channels, "columns": lidar.columns, "rays": rays,
               "mount_height_m": lidar.mount_height, "max_range_m": lidar.max_range,
               "size": size, "cell_m": cell, "extent_m": (size - 1) * cell, "octaves": terrain.octaves,
               "feature_size_m": terrain.feature_size, "amplitude_m": terrain.amplitude, "seed": SEED}
     result = workload_result("rays", device, params, **timing, rays_per_s=rays_per_s, hit_fraction=hits)
+    if device == "cpu" and threads > 1:
+        one = summarize(time_calls(run_one_thread, device, repeats))
+        same = bool(np.array_equal(out["one_thread"].numpy().reshape(-1, 3), points, equal_nan=True))
+        result["one_thread"] = {**one, "rays_per_s": rays / one["median_s"], "equal_to_threads": same}
+    else:
+        run_one_thread()
     if device == "cpu" and not quick and (os.cpu_count() or 1) > 1:
         result["processes"] = _rays_processes(heights.numpy(), cell, lidar, points, repeats)
     if anchor:

@@ -89,8 +89,14 @@ def _rays_anchor_rows(a: dict, procs: dict | None) -> list[Row]:
 
 def _rays_rows(r: dict) -> list[Row]:
     p = r["params"]
-    rows = [("rays", f"{p['rays']:,} rays ({p['lidar']} {p['channels']}x{p['columns']}), {p['size']}x{p['size']} @ {p['cell_m']:g} m",
+    threads = p.get("threads", 1)
+    rows = [("rays", f"{p['rays']:,} rays ({p['lidar']} {p['channels']}x{p['columns']}), {p['size']}x{p['size']} @ {p['cell_m']:g} m,"
+                     f" cast_scans, {threads} thread{'s' if threads > 1 else ''}",
              _ms(r["median_s"]), f"{_rate(r['rays_per_s'])}rays/s (hits {100 * r['hit_fraction']:.1f}%)")]
+    one = r.get("one_thread")
+    if one:
+        rows.append(("rays 1 thr", f"the same scan as one launch; equal to {threads} threads: {'yes' if one['equal_to_threads'] else 'NO'}",
+                     _ms(one["median_s"]), f"{_rate(one['rays_per_s'])}rays/s ({r['rays_per_s'] / one['rays_per_s']:.2f}x faster with {threads})"))
     procs = r.get("processes")
     if procs:
         rows.append(_processes_row("rays", procs, "the same scan, columns interleaved", "rays", r["rays_per_s"]))

@@ -15,9 +15,11 @@ from ..kernels import raycast as raycast_kernels
 from .clutter import CanopyLayer, no_canopy
 from .device import resolve_device, to_warp
 from .lidar import LidarConfig
+from .threads import run_parts, split_threads
 
 TILE = 8  # cells per side of the max-height tiles that let rays skip empty space
 VERTICAL_DEG = 89.9  # rings steeper than this are cast one ray at a time (no horizontal walk)
+THREAD_MIN_RAYS = 8192  # rays per CPU thread below which splitting a scan does not pay (~2 ms of walking)
 
 
 @lru_cache(maxsize=32)
@@ -51,6 +53,7 @@ def trace(
     out: wp.array | None = None,
     canopy: CanopyLayer | None = None,
     per_ray: bool = False,
+    threads: int = 1,
 ) -> tuple[wp.array, wp.array]:
     """Cast every ray of ``lidar`` over every heightfield in one launch.
 
@@ -62,6 +65,8 @@ def trace(
     walked one by one (``cast_rays``: the column walk's invariant does not hold under an
     overhanging or porous layer), so ``columns`` must be the whole scan. ``per_ray`` walks
     every ray on its own without clutter too.
+    ``threads > 1`` (CPU) splits the column walk's columns over that many threads
+    (``sim/threads.py``): the same points, bit for bit; the per-ray walk stays one launch.
 
     Returns ``(points, sensor_z)``: ``(batch, rays)`` vec3 hits in each sensor frame (NaN where
     no return) and each sensor's world height.
@@ -84,30 +89,31 @@ def trace(
         require(tuple(canopy.top.shape) == (batch, H - 1, W - 1), "canopy", f"shape {tuple(canopy.top.shape)}", f"must be one value per cell: {(batch, H - 1, W - 1)}")
         wp.launch(clutter_kernels.raise_tiles, dim=canopy.top.shape, inputs=[canopy.top, canopy.density, TILE], outputs=[tile_max, terrain_max], device=device)
     wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
-    wp.launch(
-        raycast_kernels.cast_columns if by_column else raycast_kernels.cast_rays,
-        dim=(batch, len(columns)) if by_column else points.shape,
-        inputs=[
-            heights,
-            tile_max,
-            terrain_max,
-            sensor_z,
-            TILE,
-            float(cell),
-            directions,
-            *([rings, columns.start, columns.step] if by_column else []),
-            float(lidar.min_range),
-            float(lidar.max_range),
-            float(lidar.range_noise_std),
-            float(lidar.dropout),
-            float(reach),
-            int(seed),
-            int(bool(augment)),
-            *([] if by_column else [canopy.struct() if canopy is not None else no_canopy(device)]),
-        ],
-        outputs=[points],
-        device=device,
-    )
+    common = [float(lidar.min_range), float(lidar.max_range), float(lidar.range_noise_std), float(lidar.dropout), float(reach), int(seed), int(bool(augment))]
+    if by_column:
+        parts = [columns[k::threads] for k in range(min(threads, len(columns)))] if device == "cpu" else [columns]
+        if len(parts) > 1:
+            wp.load_module(raycast_kernels, device=device)  # compile/load once, not from several threads
+
+        def cast(part: range) -> None:
+            wp.launch(
+                raycast_kernels.cast_columns,
+                dim=(batch, len(part)),
+                inputs=[heights, tile_max, terrain_max, sensor_z, TILE, float(cell), directions, rings, part.start, part.step, *common],
+                outputs=[points],
+                device=device,
+            )
+
+        run_parts(cast, parts)
+    else:
+        wp.launch(
+            raycast_kernels.cast_rays,
+            dim=points.shape,
+            inputs=[heights, tile_max, terrain_max, sensor_z, TILE, float(cell), directions, *common,
+                    canopy.struct() if canopy is not None else no_canopy(device)],
+            outputs=[points],
+            device=device,
+        )
     return points, sensor_z
 
 
@@ -121,12 +127,15 @@ def as_heightfields(heights, name: str = "heights") -> tuple[object, tuple[int, 
     require(shape[0] >= 1 and shape[1] >= 2 and shape[2] >= 2, name, f"shape {shape}", "needs batch >= 1 and H, W >= 2")
     if isinstance(heights, wp.array):
         return heights, shape
-    finite = torch.isfinite(heights).all().item() if isinstance(heights, torch.Tensor) else np.isfinite(np.asarray(heights)).all()
+    if isinstance(heights, torch.Tensor) and heights.device.type != "cpu":
+        finite = torch.isfinite(heights).all().item()
+    else:  # numpy on one thread: torch's OpenMP pool can stall a small check on a busy machine
+        finite = np.isfinite(heights.detach().to(torch.float32).numpy() if isinstance(heights, torch.Tensor) else np.asarray(heights)).all()
     require(bool(finite), name, "array", "must hold only finite heights")
     return heights, shape
 
 
-def cast_scans(heights, cell: float, lidar: LidarConfig, seed: int = 0, device=None) -> torch.Tensor:
+def cast_scans(heights, cell: float, lidar: LidarConfig, seed: int = 0, device=None, threads: int | None = None) -> torch.Tensor:
     """Simulated LIDAR scans of heightfields.
 
     ``heights``: ``(batch, H, W)`` or ``(H, W)`` metres (torch tensor or numpy array), vertex
@@ -134,12 +143,15 @@ def cast_scans(heights, cell: float, lidar: LidarConfig, seed: int = 0, device=N
     ``lidar.mount_height`` above the surface at the heightfield's centre.
     Returns ``(batch, rays, 3)`` float32 points in each sensor frame, NaN rows for rays with no
     return; ray ``ring * columns + column`` follows ``lidar.ray_directions()``.
+    ``threads``: CPU threads to walk the scans' columns with (``None``: every usable core, where
+    each gets at least ``THREAD_MIN_RAYS`` rays); the points do not depend on it.
     """
     check_finite("cell", cell)
     require(cell > 0, "cell", cell, "must be > 0")
     require(isinstance(lidar, LidarConfig), "lidar", type(lidar).__name__, "must be a LidarConfig (see lidar_preset)")
     lidar.validate()
-    heights, _ = as_heightfields(heights)
+    heights, shape = as_heightfields(heights)
     device = resolve_device(device)
-    points, _ = trace(to_warp(heights, wp.float32, device), float(cell), lidar, int(seed), device)
+    threads = split_threads(threads, shape[0] * lidar.num_rays, THREAD_MIN_RAYS, device)
+    points, _ = trace(to_warp(heights, wp.float32, device), float(cell), lidar, int(seed), device, threads=threads)
     return wp.to_torch(points).view(points.shape[0], points.shape[1], 3)

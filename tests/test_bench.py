@@ -78,7 +78,7 @@ def test_rays_anchor_agrees_to_a_millimetre():
     pytest.importorskip("open3d")
     r = bench_rays("cpu", quick=True)
     a = r["anchor"]
-    assert a["available"] and [run["threads"] for run in a["runs"]] == ["all", "1"]
+    assert a["available"] and a["version"] != "unknown" and [run["threads"] for run in a["runs"]] == ["all", "1"]
     for run in a["runs"]:
         assert run["cast"]["rays_per_s"] > 0 and run["fresh"]["median_s"] >= 0
     g = a["agreement"]

@@ -187,7 +187,7 @@ def rays_anchor(heights: np.ndarray, cell: float, lidar, sensor_z: float, ours: 
             "build_s": max(fresh_timing["median_s"] - cast_timing["median_s"], 0.0),
         })
     return {
-        "available": True, "library": "open3d", "version": dist_version("open3d"), "cpu_count": os.cpu_count(),
+        "available": True, "library": "open3d", "version": dist_version("open3d", "open3d-cpu"), "cpu_count": os.cpu_count(),
         "triangles": int(triangles.shape[0]), "rays": int(n), "runs": runs,
         "agreement": compare_hits(ours, _returns(anchor_t, lidar)),
     }

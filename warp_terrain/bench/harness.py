@@ -68,12 +68,15 @@ def unavailable(module: str, err: BaseException) -> dict:
     return {"available": False, "reason": f"{module} not importable ({type(err).__name__}: {' '.join(str(err).split())})"}
 
 
-def dist_version(dist: str) -> str:
-    """The installed version of distribution ``dist``, or ``"unknown"``."""
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return "unknown"
+def dist_version(*dists: str) -> str:
+    """The installed version of the first of ``dists`` that is installed (a library can ship
+    under several distribution names: ``open3d``, ``open3d-cpu``), or ``"unknown"``."""
+    for dist in dists:
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            continue
+    return "unknown"
 
 
 def _cpu_model() -> str:

@@ -98,8 +98,8 @@ def _rays_rows(r: dict) -> list[Row]:
         rows.append(("rays 1 thr", f"the same scan as one launch; equal to {threads} threads: {'yes' if one['equal_to_threads'] else 'NO'}",
                      _ms(one["median_s"]), f"{_rate(one['rays_per_s'])}rays/s ({r['rays_per_s'] / one['rays_per_s']:.2f}x faster with {threads})"))
     procs = r.get("processes")
-    if procs:
-        rows.append(_processes_row("rays", procs, "the same scan, columns interleaved", "rays", r["rays_per_s"]))
+    if procs:  # against one process on one thread
+        rows.append(_processes_row("rays", procs, "the same scan, columns interleaved", "rays", (one or r)["rays_per_s"]))
     a = r.get("anchor")
     if a and a["available"]:
         rows.extend(_rays_anchor_rows(a, procs))

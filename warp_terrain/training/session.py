@@ -47,6 +47,7 @@ from .checkpoint import BEST, LATEST, remove_stale_temporaries, resolve_resume, 
 from .config import RunConfig
 from .distributed import NullWriter, Ranks, close_ranks, init_ranks
 from .files import save_figure_png, write_text
+from .scalars import DeferredScalars
 from .visuals import map_grid, validation_figure
 
 logger = logging.getLogger("warp_terrain.training")
@@ -109,6 +110,7 @@ class TrainingRun:
     rmse: float = math.nan
     prediction: torch.Tensor | None = None
     meter: Throughput = field(default_factory=Throughput)
+    scalars: DeferredScalars | None = None  # the losses, logged without a device sync (``scalars.py``)
 
     @property
     def ckpt_dir(self) -> Path:
@@ -183,6 +185,7 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
         writer=writer,
         base_lrs={id(model.optimizer_G): cfg.model.lr_g, id(model.optimizer_D): cfg.model.lr_d},
         relief_floor=cfg.model.height_scale_min if cfg.model.relief_relative_loss else 0.0,
+        scalars=DeferredScalars(writer.add_scalar, "loss"),
     )
 
 
@@ -263,16 +266,17 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
 def log(run: TrainingRun, step: int, bar) -> None:
     """Log the last step's losses, the learning rates and the throughput since the last log at
     ``step``; show the losses and the latest validation RMSE on the progress ``bar``; restart
-    the throughput counters."""
+    the throughput counters. The losses are copied to the host without waiting for the device
+    (``DeferredScalars``): on a GPU they reach TensorBoard, at their own step, once the copy is
+    done, and the bar shows the newest written (on the CPU, this step's)."""
     model, writer, meter = run.model, run.writer, run.meter
-    losses = model.loss_values()
-    for name, value in losses.items():
-        writer.add_scalar(f"loss/{name}", value, step)
+    run.scalars.push(step, model.losses)
+    losses = run.scalars.latest
     writer.add_scalar("lr/generator", model.optimizer_G.param_groups[0]["lr"], step)
     writer.add_scalar("lr/discriminator", model.optimizer_D.param_groups[0]["lr"], step)
     writer.add_scalar("throughput/pairs_per_s", meter.pairs / max(meter.busy, 1e-9), step)
     writer.add_scalar("throughput/data_wait_share", meter.wait / max(meter.busy, 1e-9), step)
-    shown = {"D": f"{losses['discriminator']:.3f}", "G": f"{losses['generator_gan']:.3f}", "L1": f"{losses['l1']:.3f}"}
+    shown = {key: f"{losses[name]:.3f}" for key, name in (("D", "discriminator"), ("G", "generator_gan"), ("L1", "l1")) if name in losses}
     if math.isfinite(run.rmse):  # no validation score before the first validation
         shown["val"] = f"{run.rmse:.3f}"
     bar.set_postfix(**shown)
@@ -369,6 +373,7 @@ def finish(run: TrainingRun, callbacks: Sequence, started: float) -> dict:
         "world_size": run.ranks.world,
         "first_batch_seeds": _first_batch_seeds(run),
     }
+    run.scalars.flush(wait=True)
     _log_hparams(run)
     run.writer.close()
     write_text(run.run_dir / "summary.json", json.dumps(summary, indent=2))

@@ -3,10 +3,22 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.inference.selfcheck import CHECK_SHARE, best_fill, candidate_fills, chosen_fill, correction_weight, hidden_cells, pick
+from warp_terrain.inference.selfcheck import (
+    CHECK_SHARE,
+    REACH_FAR,
+    REACH_NEAR,
+    best_fill,
+    candidate_fills,
+    chosen_fill,
+    correction_weight,
+    far_share,
+    hidden_cells,
+    pick,
+)
 from warp_terrain.models.config import ModelConfig
 from warp_terrain.models.fill import FillResidualGenerator
 
@@ -86,10 +98,10 @@ def plane_scan(size: int = 48):
     return z * mask, mask, z
 
 
-def reconstructor(value: float, self_check: bool) -> Reconstructor:
+def reconstructor(value: float, self_check: bool, check_reach: bool = False) -> Reconstructor:
     cfg = ModelConfig(name="unet", in_channels=2, residual=True, base_fill="plane_biharmonic", height_reference="plane")
     generator = FillResidualGenerator(Offset(value), base="plane_biharmonic", reference="plane")
-    return Reconstructor(generator, cfg, device="cpu", tta=False, self_check=self_check)
+    return Reconstructor(generator, cfg, device="cpu", tta=False, self_check=self_check, check_reach=check_reach)
 
 
 def test_a_correction_the_scan_refutes_is_switched_off():
@@ -135,3 +147,59 @@ def test_package_model_records_the_self_check_and_refuses_it_without_a_fill(tmp_
 def test_the_shipped_model_checks_itself():
     assert Reconstructor.load(device="cpu").self_check
     assert not Reconstructor.load(device="cpu", self_check=False).self_check
+
+
+def test_far_share_is_the_chessboard_distance_ramp():
+    """0 up to REACH_NEAR cells from an observed cell, 1 from REACH_FAR on, linear between."""
+    mask = torch.zeros(2, 1, 21, 21)
+    mask[0, 0, 10, 10] = 1.0  # map 1 has no observed cell: far everywhere
+    share = far_share(mask)
+    r, c = torch.meshgrid(torch.arange(21), torch.arange(21), indexing="ij")
+    chessboard = torch.maximum((r - 10).abs(), (c - 10).abs()).float()
+    expected = ((chessboard - REACH_NEAR) / (REACH_FAR - REACH_NEAR)).clamp(0, 1)
+    torch.testing.assert_close(share[0, 0], expected, rtol=0, atol=1e-6)
+    assert float(share[0, 0, 10, 10 + REACH_NEAR]) == 0.0 and float(share[0, 0, 10, 10 + REACH_FAR]) == 1.0
+    assert bool((share[1] == 1.0).all())
+    assert bool((far_share(torch.ones(1, 1, 5, 5)) == 0.0).all())
+    for near, far in ((2, 2), (3, 1), (-1, 4), (1.5, 4)):
+        with pytest.raises(ValueError, match="near"):
+            far_share(mask, near, far)
+
+
+def test_check_reach_keeps_the_checked_map_near_the_scan_and_the_correction_far_from_it():
+    """A +1 m correction the scan refutes: with ``check_reach`` the map is the checked one (the
+    plane) next to the scan, the unchecked one (plane + 1 m) from REACH_FAR cells on, and
+    ``checked + far_share (unchecked - checked)`` everywhere."""
+    scan, mask, truth = plane_scan()
+    mask[..., 16:] = 0.0  # the scan covers the first 16 columns only
+    scan = scan * mask
+    checked = reconstructor(1.0, self_check=True).predict_maps(scan, mask)
+    unchecked = reconstructor(1.0, self_check=False).predict_maps(scan, mask)
+    reach = reconstructor(1.0, self_check=True, check_reach=True).predict_maps(scan, mask)
+    share = far_share(mask)
+    assert float((checked - truth).abs().max()) < 0.01  # refuted: the fill
+    torch.testing.assert_close(reach, checked + share * (unchecked - checked), rtol=0, atol=1e-3)
+    near, far = share == 0, share == 1
+    assert bool(near[..., :16 + REACH_NEAR].all()) and bool(far[..., 16 + REACH_FAR - 1:].all())
+    assert float((reach - truth)[near].abs().max()) < 0.01
+    torch.testing.assert_close(reach[far], unchecked[far], rtol=0, atol=1e-3)
+    # without the self-check, check_reach changes nothing: the map is the model's
+    torch.testing.assert_close(reconstructor(1.0, self_check=False, check_reach=True).predict_maps(scan, mask), unchecked)
+
+
+def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):
+    from warp_terrain.evaluation.calibrate import package_model
+
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
+    from warp_terrain.models.pix2pix import build_generator
+
+    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    out = package_model(tmp_path / "residual.pt", tmp_path / "reach.pt", calibrate=0, self_check=True, check_reach=True)
+    assert out["check_reach"] is True
+    loaded = Reconstructor.load(tmp_path / "reach.pt", device="cpu")
+    assert loaded.self_check and loaded.check_reach
+    assert not Reconstructor.load(tmp_path / "reach.pt", device="cpu", check_reach=False).check_reach
+    assert not Reconstructor.load(tmp_path / "residual.pt", device="cpu").check_reach  # off unless the file says so
+    with pytest.raises(ValueError, match="check_reach: needs self_check"):
+        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, self_check=False, check_reach=True)
+    assert not (tmp_path / "x.pt").exists()

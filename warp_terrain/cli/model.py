@@ -251,6 +251,9 @@ def add_package_model(sub) -> None:
                         "(default 256; 0 skips; models without an uncertainty head skip it)")
     p.add_argument("--self-check", action="store_true",
                    help="the file's maps are checked on their own scans by default (Reconstructor self_check; fill-residual models only)")
+    p.add_argument("--check-reach", action="store_true",
+                   help="with --self-check: the check's weight holds near the scan only, the model's full correction far from it "
+                        "(for a model measured to pay far from data; inference/selfcheck.py)")
     _add_device(p)
     p.set_defaults(func=cmd_package_model)
 
@@ -263,5 +266,6 @@ def cmd_package_model(args) -> int:
     out = Path(args.out)
     if not out.resolve().parent.is_dir():
         raise ValueError(f"--out {str(out)!r}: the folder does not exist")
-    print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device, self_check=args.self_check)))
+    print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device, self_check=args.self_check,
+                                   check_reach=args.check_reach)))
     return 0

@@ -52,7 +52,8 @@ def fit_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str = "cpu", c
     return math.sqrt(total / cells)
 
 
-def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False) -> dict:
+def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False,
+                  check_reach: bool = False) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
@@ -60,14 +61,18 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
 
     ``self_check``: the file asks ``Reconstructor`` to check every map on its own scan
     (``meta["self_check"]``; only a fill-residual generator has the fills to fall back to).
+    ``check_reach``: the check's weight holds near the scan only, the full correction far from it
+    (``meta["check_reach"]``, ``inference/selfcheck.py``); needs ``self_check``.
 
-    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check"}`` (``sigma_scale`` None if not fitted).
+    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check", "check_reach"}`` (``sigma_scale`` None if not fitted).
     """
     if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
         raise ValueError(f"calibrate={calibrate!r}: must be an integer >= 0")
     out = Path(out)
     if not out.resolve().parent.is_dir():
         raise ValueError(f"out={str(out)!r}: the folder does not exist")
+    if check_reach and not self_check:
+        raise ValueError("check_reach: needs self_check (it sets how far the self-check's weight holds)")
     rec = Reconstructor.load(checkpoint, device=device, self_check=False)
     if self_check and not hasattr(rec.generator, "base_fill"):
         raise ValueError(f"{str(checkpoint)!r}: self_check needs a fill-residual model (model.residual=true)")
@@ -78,6 +83,7 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
         sim = as_sim_config({key: run[key] for key in ("terrain", "lidar", "data")})
         rec.meta["sigma_scale"] = fit_sigma_scale(rec, sim, calibrate, device=rec.device)
     rec.meta["self_check"] = bool(self_check)
+    rec.meta["check_reach"] = bool(check_reach)
     rec.save(out)
     return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale"),
-            "self_check": bool(self_check)}
+            "self_check": bool(self_check), "check_reach": bool(check_reach)}

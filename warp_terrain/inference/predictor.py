@@ -91,8 +91,11 @@ def reconstructor_predictor(rec: Reconstructor, chunk: int = 16, path=None) -> P
     return Predictor(predict, rec.model_config.in_channels, _trained_sim(rec.meta), info)
 
 
-def load_predictor(path=None, device=None, chunk: int = 16, tta: bool = True, self_check: bool | None = None) -> Predictor:
+def load_predictor(path=None, device=None, chunk: int = 16, tta: bool = True, self_check: bool | None = None,
+                   check_reach: bool | None = None) -> Predictor:
     """The predictor of a training checkpoint (``checkpoints/best.pt``), a ``Reconstructor`` file,
     or (``path=None``) the model shipped in the package; ``tta``: average the 8 orientations;
-    ``self_check``: check each map on its own scan (``Reconstructor``; None: as the file says)."""
-    return reconstructor_predictor(Reconstructor.load(path, device=device, tta=tta, self_check=self_check), chunk, path)
+    ``self_check``: check each map on its own scan, ``check_reach``: the check's weight near the
+    scan only (``Reconstructor``; None: as the file says)."""
+    rec = Reconstructor.load(path, device=device, tta=tta, self_check=self_check, check_reach=check_reach)
+    return reconstructor_predictor(rec, chunk, path)

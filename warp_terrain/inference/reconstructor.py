@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import best_fill, candidate_fills, chosen_fill, correction_weight, hidden_cells, pick
+from .selfcheck import best_fill, candidate_fills, chosen_fill, correction_weight, far_share, hidden_cells, pick
 
 PRETRAINED = "reconstructor.pt"
 
@@ -59,7 +59,7 @@ class Reconstructor:
     """
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
-                 self_check: bool | None = None):
+                 self_check: bool | None = None, check_reach: bool | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
         self.model_config = model_config
@@ -68,10 +68,14 @@ class Reconstructor:
         # None: as the model file says (``meta["self_check"]``, set when it was packaged)
         wanted = bool(self.meta.get("self_check", False)) if self_check is None else bool(self_check)
         self.self_check = wanted and hasattr(self.generator, "base_fill")
+        # the checked weight holds only near the scan (``selfcheck.far_share``): a model packaged
+        # so (``meta["check_reach"]``), because its correction was measured to pay far from data
+        self.check_reach = bool(self.meta.get("check_reach", False)) if check_reach is None else bool(check_reach)
 
     # -- files --------------------------------------------------------------------------------
     @classmethod
-    def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None) -> Reconstructor:
+    def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None,
+             check_reach: bool | None = None) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")
@@ -89,7 +93,7 @@ class Reconstructor:
             raise ValueError(f"model file {str(path)!r} holds neither a Reconstructor nor a training checkpoint")
         generator = build_generator(cfg)
         generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
-        return cls(generator, cfg, meta, device, tta, self_check)
+        return cls(generator, cfg, meta, device, tta, self_check, check_reach)
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
@@ -121,7 +125,9 @@ class Reconstructor:
         With ``self_check`` each map keeps only the share of the net's correction that the
         map's own scan supports (``inference/selfcheck.py``): the model's map of the scan with a
         fifth of its observed cells hidden is compared there with two classical fills (its base
-        fill and the plain thin plate), and the map is the better fill plus that share."""
+        fill and the plain thin plate), and the map is the better fill plus that share. With
+        ``check_reach`` that share holds near the scan only and rises to the whole correction
+        with distance from it (``far_share``), where the check has nothing to measure."""
         scan, mask = scan.to(self.device), mask.to(self.device)
         height, sigma, base = self._predict(scan, mask)
         if not self.self_check:
@@ -134,6 +140,8 @@ class Reconstructor:
         choice = best_fill(fills_thinned, scan, hidden)
         weight = correction_weight(checked, pick(fills_thinned, choice), scan, hidden)
         fill = chosen_fill(base, scan, mask, choice)
+        if self.check_reach:
+            weight = weight + (1.0 - weight) * far_share(mask).to(weight.dtype)
         return fill + weight * (height - fill), sigma
 
     def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:

@@ -14,6 +14,17 @@ where it does worse (the map is then the classical fill), in between where it he
 The fill itself is chosen the same way, per map, between the model's base fill and the plain
 thin plate (``candidate_fills``): whichever errs less on the hidden cells. A label-free check of
 every map, at the cost of a second pass on the thinned scan.
+
+What the check measures is how the model does next to measured cells: a hidden cell has kept
+cells around it. Far from every measured cell (a long shadow, the map's corners beyond the
+sensor's range) the scan has nothing to say. For a model whose correction was measured to pay
+there (``Reconstructor(check_reach=True)``, ``meta["check_reach"]`` of a packaged file: per
+distance band on real terrain, the model trained on the mixed world beats the thin plate far
+from the scan and loses to it next to measured cells of clean scans), the checked weight holds
+near the scan and gives way to the full correction with distance (``far_share``):
+``w = w* + (1 - w*) far``, ``far`` rising from 0 at ``REACH_NEAR`` cells from the nearest
+observed cell to 1 at ``REACH_FAR``. A model whose correction does not pay far from data
+(measured: the previous shipped model, 2-3x the thin plate there) must not be packaged so.
 """
 
 from __future__ import annotations
@@ -26,6 +37,11 @@ from ..models.biharmonic import biharmonic_fill
 CHECK_SHARE = 0.2
 #: Seed of the cells hidden: the same scan gets the same check, so predictions repeat.
 CHECK_SEED = 0x5E1F
+#: Cells (chessboard distance to the nearest observed cell) up to which the checked weight holds:
+#: the reach of the check, whose hidden cells lie next to kept ones.
+REACH_NEAR = 2
+#: Cells beyond which the model's full correction is kept (no evidence there from the scan).
+REACH_FAR = 8
 
 
 def hidden_cells(mask: torch.Tensor, share: float = CHECK_SHARE, seed: int = CHECK_SEED) -> torch.Tensor:
@@ -71,3 +87,17 @@ def best_fill(candidates: torch.Tensor, measured: torch.Tensor, hidden: torch.Te
 def pick(candidates: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """(B, 1, S, S): candidate ``index[b]`` of each map ``b``."""
     return candidates[index, torch.arange(candidates.shape[1], device=candidates.device)]
+
+
+def far_share(mask: torch.Tensor, near: int = REACH_NEAR, far: int = REACH_FAR) -> torch.Tensor:
+    """(B, 1, S, S) in [0, 1]: 0 within ``near`` cells (chessboard distance) of an observed cell,
+    1 from ``far`` cells on, linear in the distance between; 1 everywhere on a map with no
+    observed cell. The distance comes from ``far`` 3x3 dilations of the observed cells."""
+    if not (isinstance(near, int) and isinstance(far, int) and 0 <= near < far):
+        raise ValueError(f"far_share: need integers 0 <= near < far, got near={near!r}, far={far!r}")
+    reached = (mask > 0).to(torch.float32)
+    distance = torch.zeros_like(reached)
+    for _ in range(far):
+        distance = distance + (1.0 - reached)  # cells not yet reached are one dilation farther
+        reached = torch.nn.functional.max_pool2d(reached, 3, stride=1, padding=1)
+    return ((distance - near) / (far - near)).clamp(0.0, 1.0).to(mask.dtype if mask.is_floating_point() else torch.float32)

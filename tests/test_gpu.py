@@ -64,3 +64,20 @@ def test_no_cuda_driver_warning_on_a_cpu_machine_unless_verbose(tmp_path):
     loud = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env={**env, "WARP_TERRAIN_VERBOSE": "1"},
                           capture_output=True, text=True, timeout=300)
     assert "Could not find or load the NVIDIA CUDA driver" in loud.stderr + loud.stdout
+
+
+@pytest.mark.gpu
+def test_the_batch_is_made_on_torchs_current_stream():
+    """Under a non-default torch stream, the Warp launches of ``generate_batch`` run on that
+    stream (``sim/device.py`` ``torch_stream``): torch work queued after them on it reads
+    finished maps, identical to those made on the default stream."""
+    sim = wt.SimConfig()
+    reference = wt.generate_batch(4, sim, seed=3, device="cuda")
+    side = torch.cuda.Stream()
+    with torch.cuda.stream(side):
+        batch = wt.generate_batch(4, sim, seed=3, device="cuda")
+        total = batch.target.sum() + batch.scan.sum()  # queued on `side`, behind the launches
+    side.synchronize()
+    torch.testing.assert_close(batch.target, reference.target, rtol=0, atol=0)
+    torch.testing.assert_close(total, reference.target.sum() + reference.scan.sum(), rtol=0, atol=0)
+

@@ -21,7 +21,7 @@ from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
 from .clutter import CanopyLayer, make_canopy
 from .dem import check_fit, load_dems
-from .device import resolve_device, to_warp
+from .device import resolve_device, to_warp, torch_stream
 from .lidar import LidarConfig, lidar_preset
 from .memory import check_batch_fits
 from .projection import bin_into_maps, check_map
@@ -257,13 +257,14 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
         reach = 0.5 * (min(shape[1], shape[2]) - 1) * sim.terrain.cell
         need = 0.5 * sim.data.map_size * sim.data.map_cell
         require(reach >= need, "heights", f"shape {shape}", f"covers +-{reach:g} m but the map needs +-{need:g} m")
-        if not isinstance(heights, wp.array):
+    with torch_stream(device):  # on CUDA every launch below runs on torch's current stream
+        if heights is not None and not isinstance(heights, wp.array):
             heights = to_warp(heights, wp.float32, device)
-    else:
-        heights = make_terrains(batch, sim, seed, device, amplitude=amplitude, feature_size=feature_size)
-    canopy = make_clutter(heights, sim, seed, device)
-    points, sensor_z = scan_terrains(heights, sim, seed, device, canopy)
-    arrays = make_maps(heights, points, sensor_z, sim, seed, device, canopy)
+        elif heights is None:
+            heights = make_terrains(batch, sim, seed, device, amplitude=amplitude, feature_size=feature_size)
+        canopy = make_clutter(heights, sim, seed, device)
+        points, sensor_z = scan_terrains(heights, sim, seed, device, canopy)
+        arrays = make_maps(heights, points, sensor_z, sim, seed, device, canopy)
     arrays.update(points=points, heights=heights, sensor_z=sensor_z)
     tensors = {k: wp.to_torch(v) for k, v in arrays.items()}
     tensors["points"] = tensors["points"].view(batch, -1, 3)

@@ -5,7 +5,9 @@ environment variable ``WARP_TERRAIN_DEVICE`` if set, else CUDA when available, e
 suite sets ``WARP_TERRAIN_DEVICE=cpu``, so it runs the same on a GPU machine; tests marked
 ``gpu`` ask for CUDA by name).
 Warp arrays are handed to torch with ``wp.to_torch`` and taken from torch with
-``wp.from_torch``: both share memory, nothing is copied.
+``wp.from_torch``: both share memory, nothing is copied. On CUDA the launches that fill them run
+on torch's current stream (``torch_stream``), so what torch queues next on that stream sees
+their results, with no host sync and no reliance on either library's default stream.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -78,3 +82,16 @@ def to_warp(x, dtype, device: str) -> wp.array:
             t = t.to(device)
         return wp.from_torch(t.contiguous().to(torch.float32), dtype=dtype)
     return wp.array(np.ascontiguousarray(x, dtype=np.float32), dtype=dtype, device=device)
+
+
+@contextmanager
+def torch_stream(device: str) -> Iterator[None]:
+    """Inside, Warp launches and allocations on CUDA ``device`` go to torch's current stream of
+    that device (``wp.stream_from_torch``; the stream first waits for Warp's previous one). One
+    stream for both libraries: tensors handed over zero-copy are ordered with what torch does
+    next, under a non-default torch stream or graph capture too. Nothing changes on the CPU."""
+    if not str(device).startswith("cuda"):
+        yield
+        return
+    with wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(torch.device(device)))):
+        yield

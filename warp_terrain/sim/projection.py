@@ -9,7 +9,7 @@ import warp as wp
 from ..core.checks import check_finite, require
 from ..core.geometry import MAP_CELL, MAP_SIZE
 from ..kernels import projection as projection_kernels
-from .device import resolve_device, to_warp
+from .device import resolve_device, to_warp, torch_stream
 
 
 def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str, fill: float = 0.0):
@@ -75,7 +75,7 @@ def project_points(points, map_size: int = MAP_SIZE, map_cell: float = MAP_CELL,
         return zeros, zeros.clone()
     if isinstance(points, torch.Tensor) and not points.is_floating_point():
         points = points.float()
-    with np.errstate(over="ignore"):  # float64 beyond float32's range -> inf: skipped like NaN
+    with np.errstate(over="ignore"), torch_stream(device):  # float64 beyond float32's range -> inf: skipped like NaN
         wp_points = to_warp(points, wp.vec3, device)
-    height, _top, mask = bin_into_maps(wp_points, int(map_size), float(map_cell), device)
+        height, _top, mask = bin_into_maps(wp_points, int(map_size), float(map_cell), device)
     return wp.to_torch(height), wp.to_torch(mask)

@@ -13,7 +13,7 @@ from ..kernels import clutter as clutter_kernels
 from ..kernels import heightfield as heightfield_kernels
 from ..kernels import raycast as raycast_kernels
 from .clutter import CanopyLayer, no_canopy
-from .device import resolve_device, to_warp
+from .device import resolve_device, to_warp, torch_stream
 from .lidar import LidarConfig
 from .threads import run_parts, split_threads
 
@@ -153,5 +153,6 @@ def cast_scans(heights, cell: float, lidar: LidarConfig, seed: int = 0, device=N
     heights, shape = as_heightfields(heights)
     device = resolve_device(device)
     threads = split_threads(threads, shape[0] * lidar.num_rays, THREAD_MIN_RAYS, device)
-    points, _ = trace(to_warp(heights, wp.float32, device), float(cell), lidar, int(seed), device, threads=threads)
+    with torch_stream(device):
+        points, _ = trace(to_warp(heights, wp.float32, device), float(cell), lidar, int(seed), device, threads=threads)
     return wp.to_torch(points).view(points.shape[0], points.shape[1], 3)

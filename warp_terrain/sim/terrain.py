@@ -14,7 +14,7 @@ from ..kernels import noise as noise_kernels
 from ..kernels import obstacles as obstacle_kernels
 from .clutter import ClutterConfig
 from .dem import DemConfig, dem_windows, load_dems
-from .device import resolve_device
+from .device import resolve_device, torch_stream
 from .landforms import LandformConfig, ReliefConfig, TiltConfig, add_landforms, landform_scratch_bytes
 
 
@@ -304,4 +304,6 @@ def fractal_heightfield(
     )
     cfg.validate()
     device = resolve_device(device)
-    return wp.to_torch(make_heightfields(int(batch), int(size), cfg, int(seed), device))
+    with torch_stream(device):
+        heights = make_heightfields(int(batch), int(size), cfg, int(seed), device)
+    return wp.to_torch(heights)

@@ -17,6 +17,7 @@ from warp_terrain.inference.selfcheck import (
     correction_weight,
     far_share,
     hidden_cells,
+    outer_cells,
     pick,
 )
 from warp_terrain.models.config import ModelConfig
@@ -166,25 +167,50 @@ def test_far_share_is_the_chessboard_distance_ramp():
             far_share(mask, near, far)
 
 
-def test_check_reach_keeps_the_checked_map_near_the_scan_and_the_correction_far_from_it():
-    """A +1 m correction the scan refutes: with ``check_reach`` the map is the checked one (the
-    plane) next to the scan, the unchecked one (plane + 1 m) from REACH_FAR cells on, and
-    ``checked + far_share (unchecked - checked)`` everywhere."""
+def test_outer_cells_are_the_observed_cells_farthest_from_the_sensor():
+    """A ring of cells at radius 3 and one at radius 10 around the centre, observed: with a
+    share just over the outer ring's, the outer ring (and only it) is selected."""
+    size = 31
+    axis = torch.arange(size, dtype=torch.float32) - 15
+    radius = torch.sqrt(axis[:, None] ** 2 + axis[None, :] ** 2)
+    inner, outer = (radius - 3).abs() < 0.5, (radius - 10).abs() < 0.5
+    mask = (inner | outer).float()[None, None]
+    share = float(outer.sum()) / float(mask.sum()) + 0.01
+    picked = outer_cells(mask, share)[0, 0]
+    assert bool((picked == outer).all())
+    assert not bool(outer_cells(torch.zeros(1, 1, 9, 9)).any())  # nothing observed: nothing hidden
+
+
+def test_check_reach_falls_back_far_from_the_scan_where_the_outer_cells_refute_the_model():
+    """A +1 m correction on an exact plane: the near check and the far check (the scan's outer
+    cells hidden) both refute it, so with ``check_reach`` the map is the plane everywhere, far
+    from the scan too."""
     scan, mask, truth = plane_scan()
-    mask[..., 16:] = 0.0  # the scan covers the first 16 columns only
+    mask[..., 16:] = 0.0  # the scan covers the first 16 columns only: the rest is far from it
+    scan = scan * mask
+    reach = reconstructor(1.0, self_check=True, check_reach=True).predict_maps(scan, mask)
+    assert float((reach - truth).abs().max()) < 0.01
+    unchecked = reconstructor(1.0, self_check=False, check_reach=True).predict_maps(scan, mask)
+    torch.testing.assert_close(unchecked, truth + 1.0, rtol=0, atol=1e-3)  # no self-check: no reach
+
+
+def test_check_reach_blends_the_near_and_far_weights_by_distance(monkeypatch):
+    """``w = w_near (1 - far_share) + w_far far_share``: with the far weight forced to 1, the map
+    is the checked one next to the scan, the model's own from REACH_FAR cells on, and
+    ``checked + far_share (unchecked - checked)`` in between."""
+    scan, mask, truth = plane_scan()
+    mask[..., 16:] = 0.0
     scan = scan * mask
     checked = reconstructor(1.0, self_check=True).predict_maps(scan, mask)
     unchecked = reconstructor(1.0, self_check=False).predict_maps(scan, mask)
-    reach = reconstructor(1.0, self_check=True, check_reach=True).predict_maps(scan, mask)
+    rec = reconstructor(1.0, self_check=True, check_reach=True)
+    monkeypatch.setattr(rec, "_far_weight", lambda scan, mask, choice: torch.ones(scan.shape[0], 1, 1, 1))
+    reach = rec.predict_maps(scan, mask)
     share = far_share(mask)
-    assert float((checked - truth).abs().max()) < 0.01  # refuted: the fill
     torch.testing.assert_close(reach, checked + share * (unchecked - checked), rtol=0, atol=1e-3)
     near, far = share == 0, share == 1
     assert bool(near[..., :16 + REACH_NEAR].all()) and bool(far[..., 16 + REACH_FAR - 1:].all())
-    assert float((reach - truth)[near].abs().max()) < 0.01
     torch.testing.assert_close(reach[far], unchecked[far], rtol=0, atol=1e-3)
-    # without the self-check, check_reach changes nothing: the map is the model's
-    torch.testing.assert_close(reconstructor(1.0, self_check=False, check_reach=True).predict_maps(scan, mask), unchecked)
 
 
 def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):

@@ -252,8 +252,8 @@ def add_package_model(sub) -> None:
     p.add_argument("--self-check", action="store_true",
                    help="the file's maps are checked on their own scans by default (Reconstructor self_check; fill-residual models only)")
     p.add_argument("--check-reach", action="store_true",
-                   help="with --self-check: the check's weight holds near the scan only, the model's full correction far from it "
-                        "(for a model measured to pay far from data; inference/selfcheck.py)")
+                   help="with --self-check: the check's weight holds near the scan only; far from it the weight measured "
+                        "on the scan's outermost observed cells, hidden (inference/selfcheck.py)")
     _add_device(p)
     p.set_defaults(func=cmd_package_model)
 

@@ -61,8 +61,8 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
 
     ``self_check``: the file asks ``Reconstructor`` to check every map on its own scan
     (``meta["self_check"]``; only a fill-residual generator has the fills to fall back to).
-    ``check_reach``: the check's weight holds near the scan only, the full correction far from it
-    (``meta["check_reach"]``, ``inference/selfcheck.py``); needs ``self_check``.
+    ``check_reach``: the check's weight holds near the scan only, the weight measured on the
+    scan's outer cells far from it (``meta["check_reach"]``, ``inference/selfcheck.py``); needs ``self_check``.
 
     Returns ``{"out", "bytes", "step", "sigma_scale", "self_check", "check_reach"}`` (``sigma_scale`` None if not fitted).
     """

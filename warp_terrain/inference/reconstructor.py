@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import best_fill, candidate_fills, chosen_fill, correction_weight, far_share, hidden_cells, pick
+from .selfcheck import best_fill, candidate_fills, chosen_fill, correction_weight, far_share, hidden_cells, outer_cells, pick
 
 PRETRAINED = "reconstructor.pt"
 
@@ -68,8 +68,8 @@ class Reconstructor:
         # None: as the model file says (``meta["self_check"]``, set when it was packaged)
         wanted = bool(self.meta.get("self_check", False)) if self_check is None else bool(self_check)
         self.self_check = wanted and hasattr(self.generator, "base_fill")
-        # the checked weight holds only near the scan (``selfcheck.far_share``): a model packaged
-        # so (``meta["check_reach"]``), because its correction was measured to pay far from data
+        # the checked weight holds only near the scan; far from it the weight measured on the
+        # scan's outer cells (``selfcheck.py``): as the model file says (``meta["check_reach"]``)
         self.check_reach = bool(self.meta.get("check_reach", False)) if check_reach is None else bool(check_reach)
 
     # -- files --------------------------------------------------------------------------------
@@ -126,8 +126,9 @@ class Reconstructor:
         map's own scan supports (``inference/selfcheck.py``): the model's map of the scan with a
         fifth of its observed cells hidden is compared there with two classical fills (its base
         fill and the plain thin plate), and the map is the better fill plus that share. With
-        ``check_reach`` that share holds near the scan only and rises to the whole correction
-        with distance from it (``far_share``), where the check has nothing to measure."""
+        ``check_reach`` that share holds near the scan only; with distance from it
+        (``far_share``) it gives way to the share measured on the scan's outermost observed
+        cells, hidden in a third pass (``_far_weight``)."""
         scan, mask = scan.to(self.device), mask.to(self.device)
         height, sigma, base = self._predict(scan, mask)
         if not self.self_check:
@@ -141,8 +142,19 @@ class Reconstructor:
         weight = correction_weight(checked, pick(fills_thinned, choice), scan, hidden)
         fill = chosen_fill(base, scan, mask, choice)
         if self.check_reach:
-            weight = weight + (1.0 - weight) * far_share(mask).to(weight.dtype)
+            far = far_share(mask).to(weight.dtype)
+            weight = weight * (1.0 - far) + self._far_weight(scan, mask, choice) * far
         return fill + weight * (height - fill), sigma
+
+    def _far_weight(self, scan: torch.Tensor, mask: torch.Tensor, choice: torch.Tensor) -> torch.Tensor:
+        """(B, 1, 1, 1) least-squares weight of the correction far from the kept cells: the
+        model's map of the scan without its outermost observed cells (``outer_cells``), against
+        the same fill of it, on those cells."""
+        outer = outer_cells(mask)
+        kept = mask * (~outer).to(mask.dtype)
+        kept_scan = scan * kept
+        probe, _, base_kept = self._predict(kept_scan, kept)
+        return correction_weight(probe, chosen_fill(base_kept, kept_scan, kept, choice), scan, outer)
 
     def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """``(height, sigma, base)``: the generator's maps averaged over the orientations, and its

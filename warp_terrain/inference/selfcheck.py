@@ -17,14 +17,15 @@ every map, at the cost of a second pass on the thinned scan.
 
 What the check measures is how the model does next to measured cells: a hidden cell has kept
 cells around it. Far from every measured cell (a long shadow, the map's corners beyond the
-sensor's range) the scan has nothing to say. For a model whose correction was measured to pay
-there (``Reconstructor(check_reach=True)``, ``meta["check_reach"]`` of a packaged file: per
-distance band on real terrain, the model trained on the mixed world beats the thin plate far
-from the scan and loses to it next to measured cells of clean scans), the checked weight holds
-near the scan and gives way to the full correction with distance (``far_share``):
-``w = w* + (1 - w*) far``, ``far`` rising from 0 at ``REACH_NEAR`` cells from the nearest
-observed cell to 1 at ``REACH_FAR``. A model whose correction does not pay far from data
-(measured: the previous shipped model, 2-3x the thin plate there) must not be packaged so.
+sensor's range) the model may do better or worse than there: measured per distance band, the
+model trained on the mixed world loses to the thin plate next to measured cells of clean scans
+and beats it far from them on real terrain. With ``check_reach`` the scan is asked a second
+question: hide its outermost observed cells (``outer_cells``: the gap they leave is as wide as
+the outer rings' spacing) and weigh the correction there the same way (``w_far``). The map then
+keeps ``w = w* (1 - far) + w_far far`` of its correction, ``far = far_share(mask)`` rising from
+0 at ``REACH_NEAR`` cells from the nearest observed cell to 1 at ``REACH_FAR``: the near check
+next to the scan, the far check away from it. A third pass of the model, on the scan without
+its outer cells.
 """
 
 from __future__ import annotations
@@ -101,3 +102,26 @@ def far_share(mask: torch.Tensor, near: int = REACH_NEAR, far: int = REACH_FAR) 
         distance = distance + (1.0 - reached)  # cells not yet reached are one dilation farther
         reached = torch.nn.functional.max_pool2d(reached, 3, stride=1, padding=1)
     return ((distance - near) / (far - near)).clamp(0.0, 1.0).to(mask.dtype if mask.is_floating_point() else torch.float32)
+
+
+#: Share of each map's observed cells, the farthest from the sensor, hidden for the far check.
+OUTER_SHARE = 0.3
+
+
+def outer_cells(mask: torch.Tensor, share: float = OUTER_SHARE) -> torch.Tensor:
+    """(B, 1, S, S) bool: each map's observed cells farthest from its centre (the sensor), the
+    outermost ``share`` of them by distance. Hidden, they leave a gap as wide as the spacing of
+    the outer rings: what the model's correction does far from the kept cells can be measured
+    there, as the random cells of ``hidden_cells`` measure it next to them."""
+    size = mask.shape[-1]
+    axis = torch.arange(size, device=mask.device, dtype=torch.float32) - 0.5 * (size - 1)
+    radius = torch.sqrt(axis[:, None] ** 2 + axis[None, :] ** 2).expand(mask.shape)
+    observed = mask > 0
+    out = torch.zeros_like(observed)
+    for b in range(mask.shape[0]):
+        r = radius[b][observed[b]]
+        if r.numel() == 0:
+            continue
+        cut = torch.quantile(r, 1.0 - share)
+        out[b] = observed[b] & (radius[b] > cut)
+    return out

@@ -32,6 +32,8 @@ from .ground_truth import subcell_point
 from .heightfield import surface_height
 from .rng import sample_seed, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 STREAM_CLUTTER = wp.constant(0x3C6EF372)  # drawing the items of a sample
 STREAM_CANOPY = wp.constant(0x5BE0CD19)  # a ray's draws against the canopy
 

@@ -9,6 +9,8 @@ import warp as wp
 
 from .rng import STREAM_AUGMENT, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 
 @wp.func
 def dihedral_apply(d: int, p: wp.vec2) -> wp.vec2:

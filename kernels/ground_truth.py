@@ -12,6 +12,8 @@ import warp as wp
 from .frames import dihedral_invert, sample_transform
 from .heightfield import surface_height
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 
 @wp.func
 def subcell_point(p: int, q: int, si: int, sj: int, half: float, step: float, map_cell: float, d: int, cell: float, H: int, W: int) -> wp.vec2:

@@ -14,6 +14,8 @@ with ``a = u - i`` and ``c = v - j`` the position inside the cell.
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 
 @wp.func
 def plane_height(h00: float, h10: float, h01: float, h11: float, a: float, c: float, upper: bool) -> float:

@@ -27,6 +27,8 @@ import warp as wp
 from .noise import PERLIN_2D_BOUND, octave_sum
 from .rng import STREAM_TERRAIN, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 # offsets in the terrain stream, past the fBm octaves' (0..15)
 TILT_OFFSET = wp.constant(1048576)
 RELIEF_OFFSET = wp.constant(2097152)  # + octave; the draw of wavelength and amplitude at + 64

@@ -25,6 +25,8 @@ import warp as wp
 
 from .rng import STREAM_TERRAIN, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 PERLIN_2D_BOUND = wp.constant(0.70710678)
 
 

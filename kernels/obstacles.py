@@ -22,6 +22,8 @@ import warp as wp
 from .heightfield import surface_height
 from .rng import STREAM_OBSTACLES, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 NONE = wp.constant(0)
 CYLINDER = wp.constant(1)
 BOX = wp.constant(2)

@@ -9,6 +9,8 @@ import warp as wp
 
 from .rng import STREAM_IMAGE_NOISE, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 
 @wp.kernel
 def bin_points(

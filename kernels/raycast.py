@@ -38,6 +38,8 @@ from .frames import dihedral_apply, sample_transform
 from .heightfield import plane_height
 from .rng import STREAM_RAYS, stream_state
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 NO_HIT = wp.constant(-1.0)
 FAR = wp.constant(1.0e30)
 

@@ -7,6 +7,8 @@ randomness (terrain, obstacles, rays, image noise, augmentation) draws from its 
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
+
 STREAM_TERRAIN = wp.constant(0x1B873593)
 STREAM_OBSTACLES = wp.constant(0x2545F491)
 STREAM_RAYS = wp.constant(0x61C88647)

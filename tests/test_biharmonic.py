@@ -144,6 +144,22 @@ def test_observed_plane_is_the_least_squares_plane():
     np.testing.assert_allclose(observed_plane(t(z), t(known))[0, 0].numpy(), expected, rtol=0, atol=1e-4)
 
 
+def test_observed_plane_fits_each_map_of_a_batch_on_its_own():
+    """Three maps, each with its own plane and its own cells (one a single row: its mean): each
+    is what it is alone, not a fit pooled over the batch."""
+    r, c = torch.meshgrid(torch.arange(12.0), torch.arange(16.0), indexing="ij")
+    z = torch.stack([0.3 * r - 0.2 * c + 5.0, -1.1 * r + 0.05 * c - 2.0, 0.0 * r + 7.0 * c])[:, None]
+    mask = torch.zeros(3, 1, 12, 16)
+    mask[0, 0, ::3, ::2] = 1.0
+    mask[1, 0, 1::4, 3::5] = 1.0
+    mask[2, 0, 6, :] = 1.0
+    out = observed_plane(z * mask, mask)
+    torch.testing.assert_close(out[:2], z[:2], rtol=0, atol=1e-4)  # planes come back exactly
+    torch.testing.assert_close(out[2], torch.full_like(out[2], float(z[2, 0, 6].mean())), rtol=0, atol=1e-4)
+    for b in range(3):
+        torch.testing.assert_close(out[b:b + 1], observed_plane((z * mask)[b:b + 1], mask[b:b + 1]), rtol=0, atol=1e-6)
+
+
 def test_observed_plane_falls_back_to_the_mean_on_a_line_or_one_cell():
     z = torch.arange(100.0).view(1, 1, 10, 10)
     line = torch.zeros(1, 1, 10, 10)

@@ -121,6 +121,7 @@ def test_gan_loss_modes():
     assert torch.allclose(lsgan(x, True), mse(x, ones))
     assert torch.allclose(lsgan(x, False), mse(x, zeros))
     assert torch.allclose(lsgan(x, False), (x**2).mean())
+    assert torch.allclose(GANLoss()(x, True), bce(x, ones))  # the default is the paper's (vanilla) loss
     with pytest.raises(ValueError, match="gan_mode"):
         GANLoss("wgan")
 

@@ -51,3 +51,15 @@ def test_run_parts_runs_every_part_once_and_reraises():
 
     with pytest.raises(RuntimeError, match="part 2 failed"):
         run_parts(fail, [0, 1, 2])
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_heightfields_split_over_threads_equal_one_launch(threads):
+    """Sample ``b`` depends only on ``(seed, b)``: seven fields made by 2 or 3 threads (uneven
+    parts) are the one-launch fields, bit for bit."""
+    one = wt.fractal_heightfield(7, 49, 0.25, feature_size=4.0, seed=11, device="cpu", threads=1).numpy()
+    split = wt.fractal_heightfield(7, 49, 0.25, feature_size=4.0, seed=11, device="cpu", threads=threads).numpy()
+    assert float(np.abs(one).max()) > 0.1  # real fields
+    np.testing.assert_array_equal(split, one)
+    with pytest.raises(ValueError, match="threads"):
+        wt.fractal_heightfield(2, 9, 0.5, device="cpu", threads=0)

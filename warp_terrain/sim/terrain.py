@@ -16,6 +16,7 @@ from .clutter import ClutterConfig
 from .dem import DemConfig, dem_windows, load_dems
 from .device import resolve_device, torch_stream
 from .landforms import LandformConfig, ReliefConfig, TiltConfig, add_landforms, landform_scratch_bytes
+from .threads import run_parts, split_threads
 
 
 @dataclass
@@ -172,6 +173,7 @@ def per_sample(value, batch: int, device: str, name: str) -> wp.array:
     return wp.array(np.ascontiguousarray(arr), dtype=float, device=device)
 
 
+THREAD_MIN_SAMPLES = 4  # fields per CPU thread below which splitting a batch does not pay (121^2: ~1 ms each)
 TABLE_MIN_SPACING = 2.0  # vertices per lattice cell below which an octave reads wp.noise directly
 
 
@@ -285,12 +287,15 @@ def fractal_heightfield(
     amplitude: float = 1.0,
     seed: int = 0,
     device=None,
+    threads: int | None = None,
 ) -> torch.Tensor:
     """``(batch, size, size)`` float32 fBm Perlin heights in metres, one launch for the batch.
 
     Vertex (i, j) lies at ``x = (i - (size-1)/2) * cell``, ``y = (j - (size-1)/2) * cell``.
     ``feature_size`` is the first octave's wavelength (metres); heights lie within
-    ``+-amplitude`` metres. Sample ``b`` depends only on ``(seed, b)``, not on ``batch``.
+    ``+-amplitude`` metres. Sample ``b`` depends only on ``(seed, b)``, not on ``batch``, so on
+    the CPU the batch is split over ``threads`` (``None``: every usable core, where each gets at
+    least ``THREAD_MIN_SAMPLES`` maps; ``sim/threads.py``) with the same heights, bit for bit.
     """
     require(isinstance(batch, (int, np.integer)) and batch >= 1, "batch", batch, "must be an integer >= 1")
     require(isinstance(size, (int, np.integer)) and size >= 2, "size", size, "must be an integer >= 2")
@@ -304,6 +309,17 @@ def fractal_heightfield(
     )
     cfg.validate()
     device = resolve_device(device)
+    batch, size = int(batch), int(size)
+    threads = split_threads(threads, batch, THREAD_MIN_SAMPLES, device)
+    heights = wp.empty((batch, size, size), dtype=float, device=device)
+    parts = [range(k * batch // threads, (k + 1) * batch // threads) for k in range(threads)]
+    if threads > 1:
+        for module in ("noise", "landforms", "obstacles"):  # compile/load once, not from several threads
+            wp.load_module(f"warp_terrain.kernels.{module}", device=device)
+
+    def fill(part: range) -> None:
+        make_heightfields(len(part), size, cfg, int(seed), device, first=part.start, out=heights[part.start:part.stop])
+
     with torch_stream(device):
-        heights = make_heightfields(int(batch), int(size), cfg, int(seed), device)
+        run_parts(fill, parts)
     return wp.to_torch(heights)

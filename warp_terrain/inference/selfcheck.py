@@ -24,8 +24,8 @@ question: hide its outermost observed cells (``outer_cells``: the gap they leave
 the outer rings' spacing) and weigh the correction there the same way (``w_far``). The map then
 keeps ``w = w* (1 - far) + w_far far`` of its correction, ``far = far_share(mask)`` rising from
 0 at ``REACH_NEAR`` cells from the nearest observed cell to 1 at ``REACH_FAR``: the near check
-next to the scan, the far check away from it. A third pass of the model, on the scan without
-its outer cells.
+next to the scan, the far check away from it. Both groups are hidden in the same pass, so the
+reach costs no extra pass of the model.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ CHECK_SEED = 0x5E1F
 #: Cells (chessboard distance to the nearest observed cell) up to which the checked weight holds:
 #: the reach of the check, whose hidden cells lie next to kept ones.
 REACH_NEAR = 2
-#: Cells beyond which the model's full correction is kept (no evidence there from the scan).
+#: Cells from which the weight measured on the outer cells (``outer_cells``) holds alone.
 REACH_FAR = 8
 
 

@@ -117,11 +117,6 @@ def outer_cells(mask: torch.Tensor, share: float = OUTER_SHARE) -> torch.Tensor:
     axis = torch.arange(size, device=mask.device, dtype=torch.float32) - 0.5 * (size - 1)
     radius = torch.sqrt(axis[:, None] ** 2 + axis[None, :] ** 2).expand(mask.shape)
     observed = mask > 0
-    out = torch.zeros_like(observed)
-    for b in range(mask.shape[0]):
-        r = radius[b][observed[b]]
-        if r.numel() == 0:
-            continue
-        cut = torch.quantile(r, 1.0 - share)
-        out[b] = observed[b] & (radius[b] > cut)
-    return out
+    # per map: the radius below which 1 - share of its observed cells lie (NaN, and no cell, if none)
+    cut = torch.nanquantile(torch.where(observed, radius, torch.nan).flatten(1), 1.0 - share, dim=1)
+    return observed & (radius > cut.view(-1, 1, 1, 1))

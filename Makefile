@@ -67,5 +67,8 @@ $(MUTATION_STAMP): $(STAMP) pyproject.toml
 	touch $(MUTATION_STAMP)
 
 mutation: $(MUTATION_STAMP)
+	@# mutmut refreshes mutants/ from changed .py files only: bring the package's data files (the
+	@# shipped model, configs) up to date too, or tests read a stale copy
+	@if [ -d mutants/warp_terrain ]; then cd warp_terrain && find . -type f ! -name '*.py' ! -path '*__pycache__*' -exec cp --parents {} ../mutants/warp_terrain/ \; ; fi
 	$(VENV)/bin/mutmut run $(ARGS)
 	$(VENV)/bin/mutmut results

@@ -79,6 +79,27 @@ def add_image_noise(
 
 
 @wp.kernel
-def height_range(lo: wp.array(dtype=float), hi: wp.array(dtype=float), span: wp.array(dtype=float)):
+def row_extremes(image: wp.array4d(dtype=float), row_lo: wp.array2d(dtype=float), row_hi: wp.array2d(dtype=float)):
+    """Lowest and highest value of each image row: one thread per (sample, row), no atomics
+    (the first half of ``height_range``'s reduction)."""
+    b, i = wp.tid()
+    lo = image[b, 0, i, 0]
+    hi = lo
+    for j in range(1, image.shape[3]):
+        v = image[b, 0, i, j]
+        lo = wp.min(lo, v)
+        hi = wp.max(hi, v)
+    row_lo[b, i] = lo
+    row_hi[b, i] = hi
+
+
+@wp.kernel
+def height_range(row_lo: wp.array2d(dtype=float), row_hi: wp.array2d(dtype=float), span: wp.array(dtype=float)):
+    """Each sample's height range (highest minus lowest value) from its rows' extremes."""
     b = wp.tid()
-    span[b] = hi[b] - lo[b]
+    lo = row_lo[b, 0]
+    hi = row_hi[b, 0]
+    for i in range(1, row_lo.shape[1]):
+        lo = wp.min(lo, row_lo[b, i])
+        hi = wp.max(hi, row_hi[b, i])
+    span[b] = hi - lo

@@ -31,6 +31,8 @@ sensor frame; rays with no return (no surface within range, outside ``[min_range
 after noise, or dropped) are written as NaN.
 """
 
+import functools
+
 import warp as wp
 
 from .clutter import STREAM_CANOPY
@@ -497,14 +499,96 @@ def cast_rays(
     write_return(points, b, r, d, w.hit, min_range, max_range, range_noise_std, dropout, seed, augment)
 
 
+TILE_CELLS = 8  # cells per side of the max-height tiles (``tile_max``) the sim launches with
+
+
+@functools.cache
+def column_kernel(static_tile: bool = False, deferred: bool = False) -> wp.Kernel:
+    """The column walk ``cast_columns`` in one of its variants, each giving the same points bit
+    for bit (kept so a GPU run can time them: ``sim/switches.py``):
+
+    - ``static_tile``: the tile size is ``TILE_CELLS``, compiled in, instead of the ``tile``
+      argument (a constant divisor and loop bounds the compiler can fold);
+    - ``deferred``: the walk only stores each ray's distance in ``ranges`` (``NO_HIT``: none) and
+      ``write_returns`` then applies noise, dropout, range gate and transform per ray, so the walk
+      kernel carries none of that code (``points`` is not written); otherwise the walk writes
+      ``points`` itself (``ranges`` unused).
+    """
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def cast_columns(
+        heights: wp.array3d(dtype=float),
+        tile_max: wp.array3d(dtype=float),
+        terrain_max: wp.array(dtype=float),
+        sensor_z: wp.array(dtype=float),
+        tile: int,
+        cell: float,
+        directions: wp.array(dtype=wp.vec3),
+        rings: int,
+        first_column: int,
+        column_step: int,
+        min_range: float,
+        max_range: float,
+        range_noise_std: float,
+        dropout: float,
+        reach: float,
+        seed: int,
+        augment: int,
+        points: wp.array2d(dtype=wp.vec3),
+        ranges: wp.array2d(dtype=float),
+    ):
+        """One thread per (scan, azimuth column): all rings of a column in one walk.
+
+        The rays of a column lie in one vertical plane through the sensor, and in that plane a
+        lower ray meets the terrain no farther than a higher one (where the higher ray meets the
+        surface, the lower one is already below it). So a single walk outward along the column's
+        azimuth (``walk`` with ``s`` = horizontal distance in metres) serves every ring: the
+        lowest ring not yet hit is tested cell by cell; when it is over, the next ring goes on from
+        the same cell. A tile (or cell) the lowest ring passes above is passed by every higher ring
+        too (no clutter here: see the module's docstring). Ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
+        Needs every ray off the vertical (``cos(e) > 0``) and rays ordered ring-major, lowest ring
+        first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding. Thread
+        ``c`` walks column ``first_column + c * column_step``, so processes can share a scan's columns.
+        """
+        b, c = wp.tid()
+        c = first_column + c * column_step
+        H = heights.shape[1]
+        W = heights.shape[2]
+        n = tile
+        if wp.static(static_tile):
+            n = wp.static(TILE_CELLS)
+        columns = directions.shape[0] // rings
+        d0 = directions[c]
+        h0 = wp.sqrt(d0[0] * d0[0] + d0[1] * d0[1])
+        line = grid_line(0.5 * float(H - 1), 0.5 * float(W - 1), d0[0] / (h0 * cell), d0[1] / (h0 * cell))  # cells per metre of horizontal travel
+        s_box = box_exit(line, reach_box(H, W, cell, reach))
+        z0 = sensor_z[b]
+        top = terrain_max[b]
+        no_canopy = Canopy()
+        no_canopy.on = 0
+        w = walk_start(line)
+        for k in range(rings):
+            r = k * columns + c
+            d = directions[r]
+            h = wp.sqrt(d[0] * d[0] + d[1] * d[1])
+            w = walk(resumed(w), line, heights, tile_max, b, n, top, z0, d[2] / h, wp.min(s_box, max_range * h), no_canopy)
+            t = NO_HIT
+            if w.hit != NO_HIT:
+                t = w.hit / h
+            if wp.static(deferred):
+                ranges[b, r] = t
+            else:
+                write_return(points, b, r, d, t, min_range, max_range, range_noise_std, dropout, seed, augment)
+
+    return cast_columns
+
+
+cast_columns = column_kernel()
+
+
 @wp.kernel
-def cast_columns(
-    heights: wp.array3d(dtype=float),
-    tile_max: wp.array3d(dtype=float),
-    terrain_max: wp.array(dtype=float),
-    sensor_z: wp.array(dtype=float),
-    tile: int,
-    cell: float,
+def write_returns(
+    ranges: wp.array2d(dtype=float),
     directions: wp.array(dtype=wp.vec3),
     rings: int,
     first_column: int,
@@ -513,44 +597,13 @@ def cast_columns(
     max_range: float,
     range_noise_std: float,
     dropout: float,
-    reach: float,
     seed: int,
     augment: int,
     points: wp.array2d(dtype=wp.vec3),
 ):
-    """One thread per (scan, azimuth column): all rings of a column in one walk.
-
-    The rays of a column lie in one vertical plane through the sensor, and in that plane a
-    lower ray meets the terrain no farther than a higher one (where the higher ray meets the
-    surface, the lower one is already below it). So a single walk outward along the column's
-    azimuth (``walk`` with ``s`` = horizontal distance in metres) serves every ring: the
-    lowest ring not yet hit is tested cell by cell; when it is over, the next ring goes on from
-    the same cell. A tile (or cell) the lowest ring passes above is passed by every higher ring
-    too (no clutter here: see the module's docstring). Ring ``k`` is at height ``z0 + s tan(e_k)`` and range ``s / cos(e_k)``.
-    Needs every ray off the vertical (``cos(e) > 0``) and rays ordered ring-major, lowest ring
-    first (``LidarConfig.ray_directions``); hits equal ``cast_rays``' to float rounding. Thread
-    ``c`` walks column ``first_column + c * column_step``, so processes can share a scan's columns.
-    """
-    b, c = wp.tid()
-    c = first_column + c * column_step
-    H = heights.shape[1]
-    W = heights.shape[2]
-    columns = directions.shape[0] // rings
-    d0 = directions[c]
-    h0 = wp.sqrt(d0[0] * d0[0] + d0[1] * d0[1])
-    line = grid_line(0.5 * float(H - 1), 0.5 * float(W - 1), d0[0] / (h0 * cell), d0[1] / (h0 * cell))  # cells per metre of horizontal travel
-    s_box = box_exit(line, reach_box(H, W, cell, reach))
-    z0 = sensor_z[b]
-    top = terrain_max[b]
-    no_canopy = Canopy()
-    no_canopy.on = 0
-    w = walk_start(line)
-    for k in range(rings):
-        r = k * columns + c
-        d = directions[r]
-        h = wp.sqrt(d[0] * d[0] + d[1] * d[1])
-        w = walk(resumed(w), line, heights, tile_max, b, tile, top, z0, d[2] / h, wp.min(s_box, max_range * h), no_canopy)
-        t = NO_HIT
-        if w.hit != NO_HIT:
-            t = w.hit / h
-        write_return(points, b, r, d, t, min_range, max_range, range_noise_std, dropout, seed, augment)
+    """The second pass of the deferred column walk: one thread per (scan, ring, column) writes
+    the return of the distance the walk stored (``write_return``), for the columns
+    ``first_column + c * column_step`` the walk was launched over."""
+    b, k, c = wp.tid()
+    r = k * (directions.shape[0] // rings) + first_column + c * column_step
+    write_return(points, b, r, directions[r], ranges[b, r], min_range, max_range, range_noise_std, dropout, seed, augment)

@@ -125,6 +125,24 @@ def test_image_noise_is_scaled_to_the_height_range_and_only_on_observed_cells():
     assert abs(scaled.mean().item()) < 0.15
 
 
+def test_height_range_is_each_samples_exact_span_reduced_without_atomics():
+    import numpy as np
+    import warp as wp
+
+    from warp_terrain.kernels import projection as projection_kernels
+
+    rng = np.random.default_rng(3)
+    image = rng.normal(size=(3, 1, 7, 5)).astype(np.float32)
+    image[1, 0, 6, 4] = 9.0  # the extremes in the last row and column,
+    image[2, 0, 0, 0] = -9.0  # in the first, and a constant sample
+    image[0] = 0.25
+    row_lo, row_hi = (wp.empty((3, 7), dtype=float, device="cpu") for _ in range(2))
+    wp.launch(projection_kernels.row_extremes, dim=(3, 7), inputs=[wp.array(image, device="cpu")], outputs=[row_lo, row_hi], device="cpu")
+    span = wp.empty(3, dtype=float, device="cpu")
+    wp.launch(projection_kernels.height_range, dim=3, inputs=[row_lo, row_hi], outputs=[span], device="cpu")
+    assert np.array_equal(span.numpy(), np.ptp(image, axis=(1, 2, 3)))
+
+
 def test_obstacles_appear_in_target_and_cast_shadows():
     cfg = small()
     cfg.terrain.amplitude = 0.0

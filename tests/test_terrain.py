@@ -43,20 +43,12 @@ def test_shape_dtype_and_the_height_scale_of_warps_noise():
 
 
 def _per_vertex_wp_noise(batch, size, cfg, seed, feature_size):
-    """The reference: one thread per vertex summing ``wp.noise`` octaves (the GPU path)."""
-    import warp as wp
+    """The reference: one thread per vertex summing ``wp.noise`` octaves (the GPU's default
+    path; the ``fbm_table`` kernel switch off)."""
+    from warp_terrain.sim.switches import use_kernel_switches
 
-    from warp_terrain.kernels import noise as noise_kernels
-    from warp_terrain.sim.terrain import per_sample
-
-    fields = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device="cpu")
-    offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device="cpu")
-    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[seed, 0], outputs=[fields, offsets], device="cpu")
-    heights = wp.empty((batch, size, size), dtype=float, device="cpu")
-    inputs = [fields, offsets, cfg.cell, cfg.persistence, cfg.lacunarity,
-              per_sample(feature_size, batch, "cpu", "feature_size"), per_sample(cfg.amplitude, batch, "cpu", "amplitude")]
-    wp.launch(noise_kernels.fractal_heightfield, dim=heights.shape, inputs=inputs, outputs=[heights], device="cpu")
-    return heights.numpy()
+    with use_kernel_switches(fbm_table=False):
+        return make_heightfields(batch, size, cfg, seed, "cpu", feature_size=feature_size).numpy()
 
 
 @pytest.mark.parametrize(

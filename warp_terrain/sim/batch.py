@@ -203,13 +203,11 @@ def make_maps(
     grid = (batch, data.map_size, data.map_size)
     scan, scan_max, mask = bin_into_maps(points, data.map_size, data.map_cell, device, fill=data.fill)
     target = wp.empty_like(scan)
-    target_min = wp.full(batch, 1.0e30, dtype=float, device=device)
-    target_max = wp.full(batch, -1.0e30, dtype=float, device=device)
     wp.launch(
         truth_kernels.cell_mean_heights,
         dim=grid,
         inputs=[heights, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
-        outputs=[target, target_min, target_max],
+        outputs=[target],
         device=device,
     )
     maps = dict(scan=scan, mask=mask, target=target, scan_max=scan_max)
@@ -223,8 +221,11 @@ def make_maps(
             device=device,
         )
     if data.noise > 0:
+        # the sample's height range, reduced per row then per sample (no contended atomics)
+        row_lo, row_hi = (wp.empty((batch, data.map_size), dtype=float, device=device) for _ in range(2))
+        wp.launch(projection_kernels.row_extremes, dim=(batch, data.map_size), inputs=[target], outputs=[row_lo, row_hi], device=device)
         height_range = wp.empty(batch, dtype=float, device=device)
-        wp.launch(projection_kernels.height_range, dim=batch, inputs=[target_min, target_max], outputs=[height_range], device=device)
+        wp.launch(projection_kernels.height_range, dim=batch, inputs=[row_lo, row_hi], outputs=[height_range], device=device)
         wp.launch(projection_kernels.add_image_noise, dim=grid, inputs=[seed, float(data.noise), height_range, mask], outputs=[scan], device=device)
     return maps
 

@@ -15,9 +15,10 @@ from ..kernels import raycast as raycast_kernels
 from .clutter import CanopyLayer, no_canopy
 from .device import resolve_device, to_warp, torch_stream
 from .lidar import LidarConfig
+from .switches import kernel_switches
 from .threads import run_parts, split_threads
 
-TILE = 8  # cells per side of the max-height tiles that let rays skip empty space
+TILE = raycast_kernels.TILE_CELLS  # cells per side of the max-height tiles that let rays skip empty space
 VERTICAL_DEG = 89.9  # rings steeper than this are cast one ray at a time (no horizontal walk)
 THREAD_MIN_RAYS = 8192  # rays per CPU thread below which splitting a scan does not pay (~2 ms of walking)
 
@@ -89,22 +90,31 @@ def trace(
         require(tuple(canopy.top.shape) == (batch, H - 1, W - 1), "canopy", f"shape {tuple(canopy.top.shape)}", f"must be one value per cell: {(batch, H - 1, W - 1)}")
         wp.launch(clutter_kernels.raise_tiles, dim=canopy.top.shape, inputs=[canopy.top, canopy.density, TILE], outputs=[tile_max, terrain_max], device=device)
     wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
-    common = [float(lidar.min_range), float(lidar.max_range), float(lidar.range_noise_std), float(lidar.dropout), float(reach), int(seed), int(bool(augment))]
+    returns = [float(lidar.min_range), float(lidar.max_range), float(lidar.range_noise_std), float(lidar.dropout)]  # what a return goes through
+    sample = [int(seed), int(bool(augment))]
+    common = [*returns, float(reach), *sample]
     if by_column:
+        switches = kernel_switches()
+        kernel = raycast_kernels.column_kernel(switches.static_tile, switches.deferred_writes)
+        # deferred: the walk stores distances, one pass over the same columns writes the returns
+        ranges = wp.empty(points.shape, dtype=float, device=device) if switches.deferred_writes else wp.empty((0, 0), dtype=float, device=device)
         parts = [columns[k::threads] for k in range(min(threads, len(columns)))] if device == "cpu" else [columns]
         if len(parts) > 1:
-            wp.load_module(raycast_kernels, device=device)  # compile/load once, not from several threads
+            kernel.module.load(device)  # compile/load once, not from several threads
 
         def cast(part: range) -> None:
             wp.launch(
-                raycast_kernels.cast_columns,
+                kernel,
                 dim=(batch, len(part)),
                 inputs=[heights, tile_max, terrain_max, sensor_z, TILE, float(cell), directions, rings, part.start, part.step, *common],
-                outputs=[points],
+                outputs=[points, ranges],
                 device=device,
             )
 
         run_parts(cast, parts)
+        if switches.deferred_writes:
+            wp.launch(raycast_kernels.write_returns, dim=(batch, rings, len(columns)),
+                      inputs=[ranges, directions, rings, columns.start, columns.step, *returns, *sample], outputs=[points], device=device)
     else:
         wp.launch(
             raycast_kernels.cast_rays,

@@ -16,6 +16,7 @@ from .clutter import ClutterConfig
 from .dem import DemConfig, dem_windows, load_dems
 from .device import resolve_device, torch_stream
 from .landforms import LandformConfig, ReliefConfig, TiltConfig, add_landforms, landform_scratch_bytes
+from .switches import kernel_switches
 from .threads import run_parts, split_threads
 
 
@@ -163,27 +164,29 @@ def scratch_bytes(cfg: TerrainConfig) -> int:
     return slots * wp.types.type_size_in_bytes(obstacle_kernels.Obstacle) + landform_scratch_bytes(cfg.relief, cfg.landforms)
 
 
-def per_sample(value, batch: int, device: str, name: str) -> wp.array:
-    """A per-sample float array from a scalar or a length-``batch`` sequence / tensor."""
+def per_sample(value, batch: int, name: str) -> np.ndarray:
+    """A per-sample float32 host array from a scalar or a length-``batch`` sequence / tensor."""
     if isinstance(value, torch.Tensor):
         value = value.detach().cpu().numpy()
     arr = np.broadcast_to(np.asarray(value, dtype=np.float32), (batch,))
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: must be finite, got {value!r}")
-    return wp.array(np.ascontiguousarray(arr), dtype=float, device=device)
+    return np.ascontiguousarray(arr)
 
 
 THREAD_MIN_SAMPLES = 4  # fields per CPU thread below which splitting a batch does not pay (121^2: ~1 ms each)
 TABLE_MIN_SPACING = 2.0  # vertices per lattice cell below which an octave reads wp.noise directly
 
 
-def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features: wp.array, amplitudes: wp.array, heights: wp.array) -> None:
-    """The CPU path of the fBm (``kernels/noise.py``): lattice gradients read once, then one
-    thread per row of vertices. Octaves whose lattice cells span fewer than
-    ``TABLE_MIN_SPACING`` vertices (no reuse to gain) call ``wp.noise`` directly."""
+def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features: wp.array, feature_min: float, amplitudes: wp.array,
+             heights: wp.array) -> None:
+    """The lattice-gradient fBm (``kernels/noise.py``; the CPU's path, on CUDA behind the
+    ``fbm_table`` switch): lattice gradients read once, then one thread per row of vertices.
+    Octaves whose lattice cells span fewer than ``TABLE_MIN_SPACING`` vertices (no reuse to
+    gain) call ``wp.noise`` directly. ``feature_min`` (metres, known on the host: no device
+    read) is the smallest of ``features``; it sizes the gradient tables."""
     batch, rows, columns = heights.shape
     device = heights.device
-    feature_min = float(features.numpy().min())
     frequencies = [cfg.lacunarity**o for o in range(cfg.octaves)]
     table = 0
     while table < cfg.octaves and feature_min / (frequencies[table] * cfg.cell) >= TABLE_MIN_SPACING:
@@ -262,10 +265,12 @@ def _fbm_relief(heights: wp.array, cfg: TerrainConfig, seed: int, device: str, f
     fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
     offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
     wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed, int(first)], outputs=[fields_, offsets], device=device)
-    features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, device, "feature_size")
-    amplitudes = per_sample(cfg.amplitude if amplitude is None else amplitude, batch, device, "amplitude")
-    if device == "cpu":
-        fbm_rows(fields_, offsets, cfg, features, amplitudes, heights)
+    features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, "feature_size")
+    feature_min = float(features.min())
+    features = wp.array(features, dtype=float, device=device)
+    amplitudes = wp.array(per_sample(cfg.amplitude if amplitude is None else amplitude, batch, "amplitude"), dtype=float, device=device)
+    if kernel_switches().fbm_table_on(device):
+        fbm_rows(fields_, offsets, cfg, features, feature_min, amplitudes, heights)
     else:
         wp.launch(
             noise_kernels.fractal_heightfield,

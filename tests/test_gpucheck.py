@@ -12,6 +12,7 @@ import platform
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -33,8 +34,8 @@ KERNEL_FILES = sorted(p.stem for p in (ROOT / "kernels").glob("*.py") if p.stem 
 QUICK_ROWS = [
     ("compile", "cpu"), ("compile", "cuda"), ("repeat", "cpu"), ("repeat", "cuda"), ("poison", "cpu"), ("poison", "cuda"),
     ("walks", "cpu"), ("walks", "cuda"), ("cuda_vs_cpu", "cuda"),
-    ("stream b=1", "cuda"), ("stream b=8", "cuda"), ("train b=8", "cuda"),
-    ("stream b=1", "cpu"), ("stream b=8", "cpu"), ("train b=8", "cpu"),
+    ("stream b=1", "cuda"), ("stream b=8", "cuda"), ("switches b=8", "cuda"), ("train b=8", "cuda"),
+    ("stream b=1", "cpu"), ("stream b=8", "cpu"), ("switches b=2", "cpu"), ("train b=8", "cpu"),
     ("process_split", "cpu"),
 ]
 REPORT_KEYS = {"tool", "warp_terrain", "quick", "groups", "time_limit_s", "elapsed_s", "timed_out", "complete", "criteria", "plan",
@@ -83,7 +84,7 @@ def test_the_quick_run_passes_here_and_skips_cuda_with_its_reason(quick):
             assert "CUDA" in r["reason"]
     statuses = [r["status"] for r in rows]
     assert report["counts"] == {s: statuses.count(s) for s in ("PASS", "FAIL", "SKIP")}
-    assert report["counts"]["PASS"] == (len(rows) if CUDA else 8)
+    assert report["counts"]["PASS"] == (len(rows) if CUDA else 9)
 
     env = report["environment"]
     assert (env["python"], env["torch"], env["warp"], env["warp_terrain"]) == (platform.python_version(), torch.__version__,
@@ -166,6 +167,43 @@ def test_a_check_that_finds_a_difference_fails_the_run(monkeypatch, tmp_path):
     assert report["ok"] is False and report["counts"]["FAIL"] == (2 if CUDA else 1)
     assert "  FAIL  " in table_line(stdout, "repeat", "cpu") and "octave5: heights differs in 1 values" in stdout
     assert "1 FAIL" in stdout or "2 FAIL" in stdout
+
+
+def _switches_row(monkeypatch=None, doctor=None):
+    ctx = gpucheck.Context(gpucheck.make_plan(quick=True), deadline=time.monotonic() + 300)
+    if doctor is not None:
+        monkeypatch.setattr(gpucheck, "scan_terrains", doctor)
+    return gpucheck.check_switches(ctx, "cpu", batch=1)
+
+
+def test_the_switches_row_compares_every_variant_with_the_default():
+    out = _switches_row()
+    assert out.failures == []
+    casts = out.figures["ray_cast"]
+    assert list(casts) == ["default", *gpucheck.COLUMN_SWITCHES]
+    for name in gpucheck.COLUMN_SWITCHES:
+        assert casts[name]["differing_values"] == {"points": 0}
+        assert casts[name]["speedup"] == pytest.approx(casts["default"]["median_s"] / casts[name]["median_s"])
+    terrain = out.figures["terrain"]
+    assert terrain["other_path"] == "per-vertex wp.noise" and 0 < terrain["other"]["max_abs_m"] <= gpucheck.TERRAIN_ATOL_M
+    assert out.detail.startswith("ray cast static_tile ") and "fBm via per-vertex wp.noise" in out.detail
+
+
+def test_a_switch_that_changes_the_points_fails_its_row(monkeypatch):
+    from warp_terrain.sim.switches import kernel_switches
+
+    real = gpucheck.scan_terrains
+
+    def off_when_deferred(heights, sim, seed, device):
+        points, sensor_z = real(heights, sim, seed, device)
+        if kernel_switches().deferred_writes:
+            moved = wp.to_torch(points)
+            moved[0, 0] = 99.0  # one ray's point, whatever it was
+        return points, sensor_z
+
+    out = _switches_row(monkeypatch, off_when_deferred)
+    assert out.failures == ["deferred_writes: points differs in 3 values", "static_tile+deferred_writes: points differs in 3 values"]
+    assert out.figures["ray_cast"]["static_tile"]["differing_values"] == {"points": 0}
 
 
 def test_a_check_that_raises_is_a_fail_with_its_error(monkeypatch, tmp_path):
@@ -314,7 +352,7 @@ def test_the_command_stops_at_its_hard_time_limit(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--time-limit", "0"], "invalid time limit '0'"),
     (["--time-limit", "soon"], "invalid time limit 'soon'"),
-    (["--only", "repeat,speed"], "unknown check 'speed': choose from compile,repeat,poison,walks,cuda_vs_cpu,stream,train,process_split"),
+    (["--only", "repeat,speed"], "unknown check 'speed': choose from compile,repeat,poison,walks,cuda_vs_cpu,stream,switches,train,process_split"),
     (["--json", "/nonexistent/folder/r.json"], "error: --json '/nonexistent/folder/r.json': the folder '/nonexistent/folder' does not exist"),
 ])
 def test_bad_arguments_exit_2_before_any_check(args, message, capsys):

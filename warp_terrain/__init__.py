@@ -35,6 +35,7 @@ from .sim import (  # noqa: E402
     generate_batch,
     lidar_preset,
     project_points,
+    use_kernel_switches,
 )
 
 __all__ = [
@@ -52,4 +53,5 @@ __all__ = [
     "generate_batch",
     "lidar_preset",
     "project_points",
+    "use_kernel_switches",
 ]

@@ -16,7 +16,10 @@
 4. throughput: ``stream b=N`` (``generate_batch`` -> pairs/s, its ray-cast stage -> scans/s,
    and the per-stage times) and ``train b=N`` (optimiser steps of the default model on a fixed
    batch -> training pairs/s), timed after a warm-up with CUDA events on CUDA (Warp launched on
-   torch's stream) and ``perf_counter`` on the CPU.
+   torch's stream) and ``perf_counter`` on the CPU;
+5. ``switches b=N``: each kernel switch (``sim/switches.py``: compile-time tile, deferred
+   writes, the other fBm path) against the default on the same terrains: bit-identical points
+   (heights to 1e-5 m for the fBm), and each one's speed-up, so a GPU run shows which to pick.
 
 Each check is one row: PASS, FAIL (with the reason; a check that raises is a FAIL with the
 error and its traceback in the JSON) or SKIP (CUDA rows without a CUDA device, with why).
@@ -61,6 +64,7 @@ from ..sim.batch import make_maps, make_terrains, scan_terrains, terrain_size
 from ..sim.parallel import ProcessHeightfields, ProcessTracer
 from ..sim.presets import terrain_preset
 from ..sim.scan import trace
+from ..sim.switches import KernelSwitches, use_kernel_switches
 from ..sim.terrain import make_heightfields
 from ..training.config import RunConfig
 from .harness import SEED, environment, sync_device
@@ -69,7 +73,7 @@ from .train import build_train_model, fixed_pair, train_inputs
 PASS, FAIL, SKIP = "PASS", "FAIL", "SKIP"
 TIME_LIMIT_S = 420.0
 #: the check groups, in the order they run (``only`` picks among them)
-GROUPS = ("compile", "repeat", "poison", "walks", "cuda_vs_cpu", "stream", "train", "process_split")
+GROUPS = ("compile", "repeat", "poison", "walks", "cuda_vs_cpu", "stream", "switches", "train", "process_split")
 
 # consistency criteria (CUDA against the CPU; the column walk against the per-ray walk)
 TERRAIN_ATOL_M = 1e-5  # terrain heights and sensor heights
@@ -116,6 +120,7 @@ class Plan:
     loop_cap_s: dict  # longest a timing loop goes on after its warm-up
     processes: int
     split_scan: bool
+    switch_batch: dict  # the batch the kernel switches are compared at
 
 
 def make_plan(quick: bool) -> Plan:
@@ -124,11 +129,12 @@ def make_plan(quick: bool) -> Plan:
     if quick:
         return Plan(quick=True, consistency_batch=2, stream_batches={"cpu": (1, 8), "cuda": (1, 8)},
                     train_batches={"cpu": (8,), "cuda": (8,)}, warmup={"cpu": 1, "cuda": 1}, repeats={"cpu": 3, "cuda": 5},
-                    train_steps={"cpu": 2, "cuda": 3}, loop_cap_s={"cpu": 5.0, "cuda": 2.0}, processes=2, split_scan=False)
+                    train_steps={"cpu": 2, "cuda": 3}, loop_cap_s={"cpu": 5.0, "cuda": 2.0}, processes=2, split_scan=False, switch_batch={"cpu": 2, "cuda": 8})
     return Plan(quick=False, consistency_batch=4, stream_batches={"cpu": (1, 8), "cuda": (1, 8, 64, 256, 1024)},
                 train_batches={"cpu": (8,), "cuda": (8, 64, 256)}, warmup={"cpu": 1, "cuda": 3}, repeats={"cpu": 5, "cuda": 20},
                 train_steps={"cpu": 3, "cuda": 10}, loop_cap_s={"cpu": 10.0, "cuda": 4.0},
-                processes=max(2, min(4, os.cpu_count() or 2)), split_scan=True)
+                processes=max(2, min(4, os.cpu_count() or 2)), split_scan=True,
+                switch_batch={"cpu": 8, "cuda": 256})
 
 
 def parse_groups(only) -> tuple[str, ...]:
@@ -578,6 +584,65 @@ def check_stream(ctx: Context, device: str, batch: int) -> Outcome:
     return Outcome(figures, detail)
 
 
+# the column walk's variants (``sim/switches.py``), each against the default
+COLUMN_SWITCHES = {
+    "static_tile": dict(static_tile=True),
+    "deferred_writes": dict(deferred_writes=True),
+    "static_tile+deferred_writes": dict(static_tile=True, deferred_writes=True),
+}
+
+
+def check_switches(ctx: Context, device: str, batch: int) -> Outcome:
+    """Each kernel switch (``sim/switches.py``) against the default on the same terrains: the
+    column walk's variants must give the same points bit for bit, the other fBm path the same
+    heights to ``TERRAIN_ATOL_M``; each variant's time and its speed-up over the default."""
+    sim = SimConfig()
+    sim.lidar.range_noise_std, sim.lidar.dropout = 0.02, 0.05  # the deferred pass's noise and dropout on
+    kind, plan, seed = kind_of(device), ctx.plan, _seed()
+    loop = functools.partial(timed, device=device, warmup=plan.warmup[kind], repeats=plan.repeats[kind], cap_s=plan.loop_cap_s[kind],
+                             deadline=ctx.deadline)
+
+    def cast():
+        return scan_terrains(heights, sim, seed, device)[0]
+
+    def points_now() -> dict[str, np.ndarray]:
+        with on_torch_stream(device):
+            return {"points": wp.to_torch(cast()).detach().to("cpu").numpy().copy()}
+
+    with on_torch_stream(device):
+        heights = make_terrains(batch, sim, seed, device)
+    reference = points_now()
+    default = loop(cast)
+    figures, bad = {"batch": batch, "lidar": sim.lidar.name, "ray_cast": {"default": default}}, []
+    for name, switches in COLUMN_SWITCHES.items():
+        with use_kernel_switches(**switches):
+            diffs = bit_differences(reference, points_now())
+            timing = loop(cast)
+        figures["ray_cast"][name] = {**timing, "differing_values": diffs, "speedup": default["median_s"] / timing["median_s"]}
+        bad += _bit_failures(name, diffs)
+    table = KernelSwitches().fbm_table_on(device)
+    flipped = "per-vertex wp.noise" if table else "lattice-gradient table"
+
+    def terrain():
+        return make_terrains(batch, sim, seed, device)
+
+    with on_torch_stream(device):
+        base = wp.to_torch(terrain()).detach().to("cpu").numpy().copy()
+    base_time = loop(terrain)
+    with use_kernel_switches(fbm_table=not table):
+        with on_torch_stream(device):
+            other = wp.to_torch(terrain()).detach().to("cpu").numpy().copy()
+        other_time = loop(terrain)
+    gap = float(np.abs(other - base).max())
+    figures["terrain"] = {"default": base_time, "other_path": flipped,
+                          "other": {**other_time, "max_abs_m": gap, "speedup": base_time["median_s"] / other_time["median_s"]}}
+    if not gap <= TERRAIN_ATOL_M:
+        bad.append(f"fBm via {flipped} differs by {gap:.2g} m (> {TERRAIN_ATOL_M:g})")
+    detail = "ray cast " + ", ".join(f"{k} {v['speedup']:.2f}x" for k, v in figures["ray_cast"].items() if k != "default")
+    detail += f"; fBm via {flipped} {figures['terrain']['other']['speedup']:.2f}x (max gap {gap:.1g} m)"
+    return Outcome(figures, detail, bad)
+
+
 def check_train(ctx: Context, device: str, batch: int) -> Outcome:
     """Optimiser steps (D then G) of the default model (``RunConfig().model``) on one fixed
     batch of the default data: training pairs/s, no data time."""
@@ -634,6 +699,8 @@ def plan_tasks(plan: Plan, groups: Iterable[str], cuda_device: str | None, cuda_
         kind = kind_of(device)
         for b in plan.stream_batches[kind]:
             add("stream", f"stream b={b}", device, functools.partial(check_stream, device=device, batch=b), why)
+        b = plan.switch_batch[kind]
+        add("switches", f"switches b={b}", device, functools.partial(check_switches, device=device, batch=b), why)
         for b in plan.train_batches[kind]:
             add("train", f"train b={b}", device, functools.partial(check_train, device=device, batch=b), why)
     add("process_split", "process_split", "cpu", functools.partial(check_process_split, device="cpu"), None)

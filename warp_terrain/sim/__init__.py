@@ -5,11 +5,13 @@ from .device import resolve_device
 from .lidar import LidarConfig, lidar_preset, lidar_preset_names
 from .projection import project_points
 from .scan import cast_scans
+from .switches import KernelSwitches, kernel_switches, use_kernel_switches
 from .terrain import ObstacleConfig, TerrainConfig, fractal_heightfield
 
 __all__ = [
     "Batch",
     "DataConfig",
+    "KernelSwitches",
     "LidarConfig",
     "ObstacleConfig",
     "SimConfig",
@@ -18,8 +20,10 @@ __all__ = [
     "cast_scans",
     "fractal_heightfield",
     "generate_batch",
+    "kernel_switches",
     "lidar_preset",
     "lidar_preset_names",
     "project_points",
     "resolve_device",
+    "use_kernel_switches",
 ]

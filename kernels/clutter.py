@@ -86,7 +86,7 @@ class ClutterItem:
 
 @wp.kernel
 def sample_items(
-    seed: int,
+    seeds: wp.array(dtype=int),
     first: int,
     spec: ClutterSpec,
     heights: wp.array3d(dtype=float),
@@ -98,6 +98,7 @@ def sample_items(
     Centres are uniform in ``[-region, region]^2`` with the item ``keep_out`` metres clear of
     the sensor (32 tries)."""
     b, s = wp.tid()
+    seed = seeds[0]
     out = ClutterItem()
     out.kind = 0
     kind = BUSH
@@ -160,7 +161,7 @@ def cell_ground(heights: wp.array3d(dtype=float), b: int, i: int, j: int) -> wp.
 
 @wp.kernel
 def stamp_canopy(
-    seed: int,
+    seeds: wp.array(dtype=int),
     first: int,
     spec: ClutterSpec,
     items: wp.array2d(dtype=ClutterItem),
@@ -173,6 +174,7 @@ def stamp_canopy(
     """The canopy slab of cell ``(i, j)`` of sample ``b`` (numbered ``first + b``): the highest
     kind over the cell's centre wins, items of that kind merge (lowest bottom, highest top)."""
     b, i, j = wp.tid()
+    seed = seeds[0]
     H = heights.shape[1]
     W = heights.shape[2]
     x = (float(i) + 0.5 - 0.5 * float(H - 1)) * cell
@@ -255,7 +257,7 @@ def cell_mean_visible(
     sensor_z: wp.array(dtype=float),
     map_cell: float,
     samples: int,
-    seed: int,
+    seeds: wp.array(dtype=int),
     augment: int,
     target: wp.array4d(dtype=float),
 ):
@@ -263,6 +265,7 @@ def cell_mean_visible(
     ``ground_truth.cell_mean_heights``) the higher of the ground and the canopy top over the
     terrain cell there (cells of density 0 are empty), averaged, in the sensor frame."""
     b, p, q = wp.tid()
+    seed = seeds[0]
     H = heights.shape[1]
     W = heights.shape[2]
     S = target.shape[2]

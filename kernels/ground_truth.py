@@ -32,11 +32,12 @@ def cell_mean_heights(
     sensor_z: wp.array(dtype=float),
     map_cell: float,
     samples: int,
-    seed: int,
+    seeds: wp.array(dtype=int),
     augment: int,
     target: wp.array4d(dtype=float),
 ):
     b, p, q = wp.tid()
+    seed = seeds[0]
     H = heights.shape[1]
     W = heights.shape[2]
     S = target.shape[2]

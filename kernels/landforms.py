@@ -107,7 +107,7 @@ class Gully:
 
 @wp.kernel
 def draw_landforms(
-    seed: int,
+    seeds: wp.array(dtype=int),
     first: int,
     spec: LandformSpec,
     params: wp.array(dtype=SampleLandforms),
@@ -122,6 +122,7 @@ def draw_landforms(
     changing its count range leaves the others' draws as they were.
     """
     b = wp.tid()
+    seed = seeds[0]
     sample = first + b
     out = SampleLandforms()
     # (wp.randf advances ``state`` in place, so draws are made here, not in helpers)

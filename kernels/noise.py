@@ -31,9 +31,10 @@ PERLIN_2D_BOUND = wp.constant(0.70710678)
 
 
 @wp.kernel
-def octave_fields(seed: int, first: int, fields: wp.array2d(dtype=wp.uint32), offsets: wp.array2d(dtype=wp.vec2)):
+def octave_fields(seeds: wp.array(dtype=int), first: int, fields: wp.array2d(dtype=wp.uint32), offsets: wp.array2d(dtype=wp.vec2)):
     """Noise field (RNG state) and lattice offset of octave ``o`` of sample ``first + b``."""
     b, o = wp.tid()
+    seed = seeds[0]
     state = stream_state(seed, first + b, STREAM_TERRAIN, o)
     offsets[b, o] = wp.vec2(wp.randf(state), wp.randf(state)) * 1024.0
     fields[b, o] = wp.rand_init(wp.randi(state))

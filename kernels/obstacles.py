@@ -58,7 +58,7 @@ class Obstacle:
 
 @wp.kernel
 def sample_obstacles(
-    seed: int,
+    seeds: wp.array(dtype=int),
     first: int,
     specs: wp.array(dtype=ObstacleSpec),
     slot_spec: wp.array(dtype=int),
@@ -77,6 +77,7 @@ def sample_obstacles(
     footprint stays ``keep_out`` metres clear of the sensor (retrying up to 32 times).
     """
     b, s = wp.tid()
+    seed = seeds[0]
     k = slot_spec[s]
     spec = specs[k]
     out = Obstacle()

@@ -63,7 +63,7 @@ def finish_maps(
 
 @wp.kernel
 def add_image_noise(
-    seed: int,
+    seeds: wp.array(dtype=int),
     noise: float,
     height_range: wp.array(dtype=float),
     mask: wp.array4d(dtype=float),
@@ -72,6 +72,7 @@ def add_image_noise(
     """The paper's "x% noise": Gaussian noise of ``noise`` times the sample's height range,
     added to observed cells only."""
     b, i, j = wp.tid()
+    seed = seeds[0]
     if mask[b, 0, i, j] > 0.0:
         S = height.shape[3]
         state = stream_state(seed, b, STREAM_IMAGE_NOISE, i * S + j)

@@ -473,7 +473,7 @@ def cast_rays(
     range_noise_std: float,
     dropout: float,
     reach: float,
-    seed: int,
+    seeds: wp.array(dtype=int),
     augment: int,
     canopy: Canopy,
     points: wp.array2d(dtype=wp.vec3),
@@ -486,6 +486,7 @@ def cast_rays(
     the whole heightfield), so a caller that only bins points into a map casts no further.
     """
     b, r = wp.tid()
+    seed = seeds[0]
     H = heights.shape[1]
     W = heights.shape[2]
     d = directions[r]
@@ -532,7 +533,7 @@ def column_kernel(static_tile: bool = False, deferred: bool = False) -> wp.Kerne
         range_noise_std: float,
         dropout: float,
         reach: float,
-        seed: int,
+        seeds: wp.array(dtype=int),
         augment: int,
         points: wp.array2d(dtype=wp.vec3),
         ranges: wp.array2d(dtype=float),
@@ -551,6 +552,7 @@ def column_kernel(static_tile: bool = False, deferred: bool = False) -> wp.Kerne
         ``c`` walks column ``first_column + c * column_step``, so processes can share a scan's columns.
         """
         b, c = wp.tid()
+        seed = seeds[0]
         c = first_column + c * column_step
         H = heights.shape[1]
         W = heights.shape[2]
@@ -597,7 +599,7 @@ def write_returns(
     max_range: float,
     range_noise_std: float,
     dropout: float,
-    seed: int,
+    seeds: wp.array(dtype=int),
     augment: int,
     points: wp.array2d(dtype=wp.vec3),
 ):
@@ -605,5 +607,6 @@ def write_returns(
     the return of the distance the walk stored (``write_return``), for the columns
     ``first_column + c * column_step`` the walk was launched over."""
     b, k, c = wp.tid()
+    seed = seeds[0]
     r = k * (directions.shape[0] // rings) + first_column + c * column_step
     write_return(points, b, r, directions[r], ranges[b, r], min_range, max_range, range_noise_std, dropout, seed, augment)

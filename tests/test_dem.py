@@ -416,3 +416,10 @@ def test_randomised_fbm_world_mixes_in_real_ground_by_dem_probability(tmp_path):
     assert all(plane_fit(h, CELL)[1] > 0.01 for h in heights)  # fBm relief, not a plane
     with pytest.raises(ValueError, match=r"^data\.randomize\.dem_probability=0\.5: .*terrain\.dem\.files"):
         to_run_config({"data": {"randomize": {"enabled": True, "dem_probability": 0.5}}})
+
+
+def test_a_replayed_batch_refuses_dem_ground(tmp_path):
+    from warp_terrain.sim.graph import BatchGraph
+
+    with pytest.raises(ValueError, match="terrain.source='dem': must be fbm: DEM windows are cut on the host for each seed"):
+        BatchGraph(2, sim_for([plane_tif(tmp_path / "plane.tif")]), device="cpu")

@@ -116,7 +116,7 @@ def test_fbm_is_the_documented_octave_sum_of_warps_own_noise():
                                amplitude=amp, seed=seed, device="cpu").numpy().astype(np.float64)
     fields = wp.empty((batch, octaves), dtype=wp.uint32, device="cpu")
     offsets = wp.empty((batch, octaves), dtype=wp.vec2, device="cpu")
-    wp.launch(octave_fields, dim=(batch, octaves), inputs=[seed, 0], outputs=[fields, offsets], device="cpu")
+    wp.launch(octave_fields, dim=(batch, octaves), inputs=[wp.full(1, seed, dtype=int, device="cpu"), 0], outputs=[fields, offsets], device="cpu")
     F, O = fields.numpy(), offsets.numpy()
     u = (np.arange(size) - 0.5 * (size - 1)) * cell / fs
     U, V = np.meshgrid(u, u, indexing="ij")

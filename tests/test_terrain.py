@@ -27,7 +27,7 @@ def test_shape_dtype_and_the_height_scale_of_warps_noise():
     assert h.shape == (batch, size, size) and h.dtype == torch.float32 and h.device.type == "cpu"
     fields = wp.empty((batch, octaves), dtype=wp.uint32, device="cpu")
     offsets = wp.empty((batch, octaves), dtype=wp.vec2, device="cpu")
-    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[seed, 0], outputs=[fields, offsets], device="cpu")
+    wp.launch(noise_kernels.octave_fields, dim=fields.shape, inputs=[wp.full(1, seed, dtype=int, device="cpu"), 0], outputs=[fields, offsets], device="cpu")
     u = (np.arange(size) - 0.5 * (size - 1)) * cell / feature
     uv = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1).reshape(-1, 2)
     out = wp.empty(len(uv), dtype=float, device="cpu")

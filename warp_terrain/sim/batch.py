@@ -19,6 +19,8 @@ from ..core.structs import build
 from ..kernels import clutter as clutter_kernels
 from ..kernels import ground_truth as truth_kernels
 from ..kernels import projection as projection_kernels
+from . import arena
+from .arena import Seed, as_seed
 from .clutter import CanopyLayer, make_canopy
 from .dem import check_fit, load_dems
 from .device import resolve_device, to_warp, torch_stream
@@ -162,7 +164,7 @@ def terrain_size(sim: SimConfig) -> int:
     return grid_size(extent, sim.terrain.cell)
 
 
-def make_terrains(batch: int, sim: SimConfig, seed: int, device: str, amplitude=None, feature_size=None) -> wp.array:
+def make_terrains(batch: int, sim: SimConfig, seed, device: str, amplitude=None, feature_size=None) -> wp.array:
     """Stage 1: ``(batch, H, W)`` terrains covering the map plus its margin (fBm, or windows of
     the DEMs with ``terrain.source=dem``), obstacles placed within the map (or
     ``terrain.obstacle_region``); per-sample ``amplitude``/``feature_size`` override the
@@ -174,7 +176,7 @@ def make_terrains(batch: int, sim: SimConfig, seed: int, device: str, amplitude=
     )
 
 
-def make_clutter(heights: wp.array, sim: SimConfig, seed: int, device: str) -> CanopyLayer | None:
+def make_clutter(heights: wp.array, sim: SimConfig, seed, device: str) -> CanopyLayer | None:
     """Stage 1b: the clutter layer over the terrains (``terrain.clutter``), placed like the
     obstacles; None when clutter is off (or none of it can be seen)."""
     data, terrain = sim.data, sim.terrain
@@ -184,7 +186,7 @@ def make_clutter(heights: wp.array, sim: SimConfig, seed: int, device: str) -> C
     return make_canopy(heights, terrain.clutter, terrain.cell, region, terrain.keep_out, seed, device)
 
 
-def scan_terrains(heights: wp.array, sim: SimConfig, seed: int, device: str, canopy: CanopyLayer | None = None) -> tuple[wp.array, wp.array]:
+def scan_terrains(heights: wp.array, sim: SimConfig, seed, device: str, canopy: CanopyLayer | None = None) -> tuple[wp.array, wp.array]:
     """Stage 2: the LIDAR scans ``(points, sensor_z)``, against the clutter ``canopy`` too if
     given; rays stop at the map's edge if ``clip_rays``."""
     data = sim.data
@@ -193,40 +195,41 @@ def scan_terrains(heights: wp.array, sim: SimConfig, seed: int, device: str, can
 
 
 def make_maps(
-    heights: wp.array, points: wp.array, sensor_z: wp.array, sim: SimConfig, seed: int, device: str, canopy: CanopyLayer | None = None
+    heights: wp.array, points: wp.array, sensor_z: wp.array, sim: SimConfig, seed, device: str, canopy: CanopyLayer | None = None
 ) -> dict[str, wp.array]:
     """Stage 3: scan image, mask and max per cell from the points; the ground-truth map from the
     terrain (and, with a clutter ``canopy``, ``target_visible``: ground or canopy top, whichever
     is higher); image noise on observed cells if configured."""
     data, terrain = sim.data, sim.terrain
     batch = heights.shape[0]
+    seed = as_seed(seed, device)
     grid = (batch, data.map_size, data.map_size)
     scan, scan_max, mask = bin_into_maps(points, data.map_size, data.map_cell, device, fill=data.fill)
-    target = wp.empty_like(scan)
+    target = arena.empty(scan.shape, float, device)
     wp.launch(
         truth_kernels.cell_mean_heights,
         dim=grid,
-        inputs=[heights, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
+        inputs=[heights, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed.array, int(bool(data.augment))],
         outputs=[target],
         device=device,
     )
     maps = dict(scan=scan, mask=mask, target=target, scan_max=scan_max)
     if canopy is not None:
-        maps["target_visible"] = wp.empty_like(scan)
+        maps["target_visible"] = arena.empty(scan.shape, float, device)
         wp.launch(
             clutter_kernels.cell_mean_visible,
             dim=grid,
-            inputs=[heights, canopy.top, canopy.density, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed, int(bool(data.augment))],
+            inputs=[heights, canopy.top, canopy.density, float(terrain.cell), sensor_z, float(data.map_cell), int(data.truth_samples), seed.array, int(bool(data.augment))],
             outputs=[maps["target_visible"]],
             device=device,
         )
     if data.noise > 0:
         # the sample's height range, reduced per row then per sample (no contended atomics)
-        row_lo, row_hi = (wp.empty((batch, data.map_size), dtype=float, device=device) for _ in range(2))
+        row_lo, row_hi = (arena.empty((batch, data.map_size), float, device) for _ in range(2))
         wp.launch(projection_kernels.row_extremes, dim=(batch, data.map_size), inputs=[target], outputs=[row_lo, row_hi], device=device)
-        height_range = wp.empty(batch, dtype=float, device=device)
+        height_range = arena.empty(batch, float, device)
         wp.launch(projection_kernels.height_range, dim=batch, inputs=[row_lo, row_hi], outputs=[height_range], device=device)
-        wp.launch(projection_kernels.add_image_noise, dim=grid, inputs=[seed, float(data.noise), height_range, mask], outputs=[scan], device=device)
+        wp.launch(projection_kernels.add_image_noise, dim=grid, inputs=[seed.array, float(data.noise), height_range, mask], outputs=[scan], device=device)
     return maps
 
 
@@ -261,12 +264,25 @@ def generate_batch(batch: int, cfg=None, seed: int = 0, device=None, heights=Non
     with torch_stream(device):  # on CUDA every launch below runs on torch's current stream
         if heights is not None and not isinstance(heights, wp.array):
             heights = to_warp(heights, wp.float32, device)
-        elif heights is None:
-            heights = make_terrains(batch, sim, seed, device, amplitude=amplitude, feature_size=feature_size)
-        canopy = make_clutter(heights, sim, seed, device)
-        points, sensor_z = scan_terrains(heights, sim, seed, device, canopy)
-        arrays = make_maps(heights, points, sensor_z, sim, seed, device, canopy)
+        return as_batch(run_stages(batch, sim, as_seed(seed, device), device, heights, amplitude, feature_size))
+
+
+def run_stages(batch: int, sim: SimConfig, seed: Seed, device: str, heights: wp.array | None = None, amplitude=None,
+               feature_size=None) -> dict[str, wp.array]:
+    """The launches of one batch (terrains unless ``heights`` are given, clutter, scans, maps),
+    every kernel reading ``seed.array``: the Warp arrays of a ``Batch``. The caller checks the
+    arguments and picks the stream (``generate_batch``, ``sim/graph.py``)."""
+    if heights is None:
+        heights = make_terrains(batch, sim, seed, device, amplitude=amplitude, feature_size=feature_size)
+    canopy = make_clutter(heights, sim, seed, device)
+    points, sensor_z = scan_terrains(heights, sim, seed, device, canopy)
+    arrays = make_maps(heights, points, sensor_z, sim, seed, device, canopy)
     arrays.update(points=points, heights=heights, sensor_z=sensor_z)
+    return arrays
+
+
+def as_batch(arrays: dict[str, wp.array]) -> Batch:
+    """A ``Batch`` of torch tensors sharing memory with ``arrays`` (``run_stages``' output)."""
     tensors = {k: wp.to_torch(v) for k, v in arrays.items()}
-    tensors["points"] = tensors["points"].view(batch, -1, 3)
+    tensors["points"] = tensors["points"].view(arrays["points"].shape[0], -1, 3)
     return Batch(**tensors, warp_arrays=arrays)

@@ -10,6 +10,8 @@ import warp as wp
 from ..core.checks import check_finite, require
 from ..kernels import clutter as clutter_kernels
 from ..kernels import raycast as raycast_kernels
+from . import arena
+from .arena import as_seed
 
 COUNTS = ("bushes", "trees")
 RANGES = ("bush_radius", "bush_height", "crown_radius", "crown_lift", "crown_depth", "grass_height")
@@ -123,7 +125,7 @@ class CanopyLayer:
 
 def no_canopy(device: str) -> raycast_kernels.Canopy:
     """The ray caster's canopy when there is no clutter (``on = 0``, empty arrays)."""
-    empty = wp.zeros((1, 1, 1), dtype=float, device=device)
+    empty = arena.zeros((1, 1, 1), float, device)
     canopy = raycast_kernels.Canopy()
     canopy.bottom = canopy.top = canopy.density = empty
     canopy.on = 0
@@ -149,20 +151,21 @@ def _spec(cfg: ClutterConfig, region: float, keep_out: float) -> clutter_kernels
     return spec
 
 
-def make_canopy(heights: wp.array, cfg: ClutterConfig, cell: float, region: float, keep_out: float, seed: int, device: str, first: int = 0) -> CanopyLayer:
+def make_canopy(heights: wp.array, cfg: ClutterConfig, cell: float, region: float, keep_out: float, seed, device: str, first: int = 0) -> CanopyLayer:
     """The canopy layer over ``heights`` (``(batch, H, W)`` world metres at ``cell`` spacing):
     items drawn per sample (numbered from ``first``) within ``+-region`` m, ``keep_out`` m
     clear of the sensor, then stamped per cell (``kernels/clutter.py``)."""
     batch, H, W = heights.shape
+    seed = as_seed(seed, device)
     spec = _spec(cfg, region, keep_out)
     slots = max(spec.bushes_max + spec.trees_max, 1)
-    items = wp.empty((batch, slots), dtype=clutter_kernels.ClutterItem, device=device)
-    wp.launch(clutter_kernels.sample_items, dim=items.shape, inputs=[int(seed), int(first), spec, heights, float(cell)], outputs=[items], device=device)
-    layer = CanopyLayer(*(wp.empty((batch, H - 1, W - 1), dtype=float, device=device) for _ in range(3)))
+    items = arena.empty((batch, slots), clutter_kernels.ClutterItem, device)
+    wp.launch(clutter_kernels.sample_items, dim=items.shape, inputs=[seed.array, int(first), spec, heights, float(cell)], outputs=[items], device=device)
+    layer = CanopyLayer(*(arena.empty((batch, H - 1, W - 1), float, device) for _ in range(3)))
     wp.launch(
         clutter_kernels.stamp_canopy,
         dim=layer.top.shape,
-        inputs=[int(seed), int(first), spec, items, heights, float(cell)],
+        inputs=[seed.array, int(first), spec, items, heights, float(cell)],
         outputs=[layer.bottom, layer.top, layer.density],
         device=device,
     )

@@ -17,6 +17,8 @@ import warp as wp
 
 from ..core.checks import check_finite, require
 from ..kernels import landforms as landform_kernels
+from . import arena
+from .arena import as_seed
 
 MAX_SLOPE_DEG = 60.0
 MAX_RELIEF_OCTAVES = 4
@@ -172,22 +174,22 @@ def landform_spec(tilt: TiltConfig, relief: ReliefConfig, forms: LandformConfig,
 
 
 def draw_landforms(batch: int, size: int, cell: float, tilt: TiltConfig, relief: ReliefConfig, forms: LandformConfig,
-                   seed: int, device: str, first: int = 0) -> LandformDraws:
+                   seed, device: str, first: int = 0) -> LandformDraws:
     """Draw samples ``first .. first + batch - 1``'s landforms on ``device`` (one launch)."""
     draws = LandformDraws(
-        params=wp.empty(batch, dtype=landform_kernels.SampleLandforms, device=device),
-        fields=wp.empty((batch, relief.octaves), dtype=wp.uint32, device=device),
-        offsets=wp.empty((batch, relief.octaves), dtype=wp.vec2, device=device),
-        depressions=wp.empty((batch, max(forms.depressions_max, 1)), dtype=landform_kernels.Depression, device=device),
-        gullies=wp.empty((batch, max(forms.gullies_max, 1)), dtype=landform_kernels.Gully, device=device),
+        params=arena.empty(batch, landform_kernels.SampleLandforms, device),
+        fields=arena.empty((batch, relief.octaves), wp.uint32, device),
+        offsets=arena.empty((batch, relief.octaves), wp.vec2, device),
+        depressions=arena.empty((batch, max(forms.depressions_max, 1)), landform_kernels.Depression, device),
+        gullies=arena.empty((batch, max(forms.gullies_max, 1)), landform_kernels.Gully, device),
     )
     spec = landform_spec(tilt, relief, forms, 0.5 * (size - 1) * cell)
-    wp.launch(landform_kernels.draw_landforms, dim=batch, inputs=[int(seed), int(first), spec], outputs=list(draws), device=device)
+    wp.launch(landform_kernels.draw_landforms, dim=batch, inputs=[as_seed(seed, device).array, int(first), spec], outputs=list(draws), device=device)
     return draws
 
 
 def add_landforms(heights: wp.array, cell: float, tilt: TiltConfig, relief: ReliefConfig, forms: LandformConfig,
-                  seed: int, device: str, first: int = 0) -> None:
+                  seed, device: str, first: int = 0) -> None:
     """Lay the enabled landforms on ``heights`` in place: relief, tilt, terraces, then the cuts
     (depressions and gullies), one launch each; nothing when all are off."""
     if not (tilt.enabled or relief.enabled or forms.enabled()):

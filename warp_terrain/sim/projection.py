@@ -9,6 +9,7 @@ import warp as wp
 from ..core.checks import check_finite, require
 from ..core.geometry import MAP_CELL, MAP_SIZE
 from ..kernels import projection as projection_kernels
+from . import arena
 from .device import resolve_device, to_warp, torch_stream
 
 
@@ -16,11 +17,11 @@ def bin_into_maps(points: wp.array, map_size: int, map_cell: float, device: str,
     """``(height, top, mask)`` Warp arrays ``(batch, 1, S, S)`` from ``(batch, rays)`` vec3 points."""
     batch = points.shape[0]
     grid = (batch, map_size, map_size)
-    height_sum = wp.zeros(grid, dtype=wp.float64, device=device)
-    count = wp.zeros(grid, dtype=int, device=device)
-    height_max = wp.full(grid, -1.0e30, dtype=float, device=device)
+    height_sum = arena.zeros(grid, wp.float64, device)
+    count = arena.zeros(grid, int, device)
+    height_max = arena.full(grid, -1.0e30, float, device)
     wp.launch(projection_kernels.bin_points, dim=points.shape, inputs=[points, float(map_cell)], outputs=[height_sum, count, height_max], device=device)
-    maps = [wp.empty((batch, 1, map_size, map_size), dtype=float, device=device) for _ in range(3)]
+    maps = [arena.empty((batch, 1, map_size, map_size), float, device) for _ in range(3)]
     wp.launch(projection_kernels.finish_maps, dim=grid, inputs=[height_sum, count, height_max, float(fill)], outputs=maps, device=device)
     return tuple(maps)
 

@@ -12,6 +12,8 @@ from ..core.checks import check_finite, require
 from ..kernels import clutter as clutter_kernels
 from ..kernels import heightfield as heightfield_kernels
 from ..kernels import raycast as raycast_kernels
+from . import arena
+from .arena import as_seed
 from .clutter import CanopyLayer, no_canopy
 from .device import resolve_device, to_warp, torch_stream
 from .lidar import LidarConfig
@@ -46,7 +48,7 @@ def trace(
     heights: wp.array,
     cell: float,
     lidar: LidarConfig,
-    seed: int,
+    seed,
     device: str,
     augment: bool = False,
     reach: float = 0.0,
@@ -73,12 +75,13 @@ def trace(
     no return) and each sensor's world height.
     """
     batch, H, W = heights.shape
+    seed = as_seed(seed, device)
     directions = ray_directions(lidar, device)
     tiles = (batch, (H - 2) // TILE + 1, (W - 2) // TILE + 1)
-    tile_max = wp.empty(tiles, dtype=float, device=device)
-    terrain_max = wp.full(batch, -1.0e30, dtype=float, device=device)
-    sensor_z = wp.empty(batch, dtype=float, device=device)
-    points = out if out is not None else wp.empty((batch, directions.shape[0]), dtype=wp.vec3, device=device)
+    tile_max = arena.empty(tiles, float, device)
+    terrain_max = arena.full(batch, -1.0e30, float, device)
+    sensor_z = arena.empty(batch, float, device)
+    points = out if out is not None else arena.empty((batch, directions.shape[0]), wp.vec3, device)
     rings = lidar.channels
     by_column = columns_walkable(lidar) and canopy is None and not per_ray
     total = directions.shape[0] // rings
@@ -91,13 +94,13 @@ def trace(
         wp.launch(clutter_kernels.raise_tiles, dim=canopy.top.shape, inputs=[canopy.top, canopy.density, TILE], outputs=[tile_max, terrain_max], device=device)
     wp.launch(heightfield_kernels.sensor_heights, dim=batch, inputs=[heights, float(lidar.mount_height)], outputs=[sensor_z], device=device)
     returns = [float(lidar.min_range), float(lidar.max_range), float(lidar.range_noise_std), float(lidar.dropout)]  # what a return goes through
-    sample = [int(seed), int(bool(augment))]
+    sample = [seed.array, int(bool(augment))]
     common = [*returns, float(reach), *sample]
     if by_column:
         switches = kernel_switches()
         kernel = raycast_kernels.column_kernel(switches.static_tile, switches.deferred_writes)
         # deferred: the walk stores distances, one pass over the same columns writes the returns
-        ranges = wp.empty(points.shape, dtype=float, device=device) if switches.deferred_writes else wp.empty((0, 0), dtype=float, device=device)
+        ranges = arena.empty(points.shape if switches.deferred_writes else (0, 0), float, device)
         parts = [columns[k::threads] for k in range(min(threads, len(columns)))] if device == "cpu" else [columns]
         if len(parts) > 1:
             kernel.module.load(device)  # compile/load once, not from several threads

@@ -12,6 +12,8 @@ import warp as wp
 from ..core.checks import check_finite, require
 from ..kernels import noise as noise_kernels
 from ..kernels import obstacles as obstacle_kernels
+from . import arena
+from .arena import Seed, as_seed
 from .clutter import ClutterConfig
 from .dem import DemConfig, dem_windows, load_dems
 from .device import resolve_device, torch_stream
@@ -151,9 +153,9 @@ def _specs(cfg: TerrainConfig, device: str):
         slot_rank += list(range(oc.count_max))
         specs.append(spec)
     return (
-        wp.array(specs, dtype=obstacle_kernels.ObstacleSpec, device=device),
-        wp.array(np.array(slot_spec, dtype=np.int32), dtype=int, device=device),
-        wp.array(np.array(slot_rank, dtype=np.int32), dtype=int, device=device),
+        arena.upload(specs, obstacle_kernels.ObstacleSpec, device),
+        arena.upload(np.array(slot_spec, dtype=np.int32), int, device),
+        arena.upload(np.array(slot_rank, dtype=np.int32), int, device),
     )
 
 
@@ -194,8 +196,8 @@ def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features:
     if table:
         span = (max(rows, columns) - 1) * cfg.cell / feature_min * max(frequencies[:table])
         n = math.ceil(span) + 4  # one cell below the grid, the far corner, and rounding
-        gradients = wp.empty((batch, table, n, n), dtype=wp.vec2, device=device)
-        origin = wp.empty((batch, table), dtype=wp.vec2i, device=device)
+        gradients = arena.empty((batch, table, n, n), wp.vec2, device)
+        origin = arena.empty((batch, table), wp.vec2i, device)
         wp.launch(
             noise_kernels.lattice_gradients,
             dim=gradients.shape[:3],  # one thread per table row
@@ -204,8 +206,8 @@ def fbm_rows(fields_: wp.array, offsets: wp.array, cfg: TerrainConfig, features:
             device=device,
         )
     else:  # every octave reads wp.noise; the kernel still takes (unused) arrays
-        gradients = wp.zeros((batch, 1, 2, 2), dtype=wp.vec2, device=device)
-        origin = wp.zeros((batch, 1), dtype=wp.vec2i, device=device)
+        gradients = arena.zeros((batch, 1, 2, 2), wp.vec2, device)
+        origin = arena.zeros((batch, 1), wp.vec2i, device)
     wp.launch(
         noise_kernels.fractal_rows,
         dim=(batch, rows),
@@ -219,7 +221,7 @@ def make_heightfields(
     batch: int,
     size: int,
     cfg: TerrainConfig,
-    seed: int,
+    seed,
     device: str,
     feature_size=None,
     amplitude=None,
@@ -235,9 +237,10 @@ def make_heightfields(
     batch, so processes can split a batch: ``sim/parallel.py``); ``out`` receives them if given.
     """
     cell = cfg.cell
-    heights = out if out is not None else wp.empty((batch, size, size), dtype=float, device=device)
+    seed = as_seed(seed, device)
+    heights = out if out is not None else arena.empty((batch, size, size), float, device)
     if cfg.source == "dem":
-        windows = dem_windows(load_dems(cfg.dem), batch, size, cell, seed, cfg.dem, first=int(first))
+        windows = dem_windows(load_dems(cfg.dem), batch, size, cell, seed.value, cfg.dem, first=int(first))
         wp.copy(heights, wp.array(windows, dtype=float, device=device))
     else:
         _fbm_relief(heights, cfg, seed, device, feature_size, amplitude, first)
@@ -247,11 +250,11 @@ def make_heightfields(
         region = obstacle_region if obstacle_region is not None else cfg.obstacle_region
         if region <= 0:
             region = 0.5 * (size - 1) * cell
-        obstacles = wp.empty((batch, slot_spec.shape[0]), dtype=obstacle_kernels.Obstacle, device=device)
+        obstacles = arena.empty((batch, slot_spec.shape[0]), obstacle_kernels.Obstacle, device)
         wp.launch(
             obstacle_kernels.sample_obstacles,
             dim=obstacles.shape,
-            inputs=[seed, int(first), specs, slot_spec, slot_rank, heights, cell, float(region), cfg.keep_out],
+            inputs=[seed.array, int(first), specs, slot_spec, slot_rank, heights, cell, float(region), cfg.keep_out],
             outputs=[obstacles],
             device=device,
         )
@@ -259,16 +262,16 @@ def make_heightfields(
     return heights
 
 
-def _fbm_relief(heights: wp.array, cfg: TerrainConfig, seed: int, device: str, feature_size, amplitude, first: int) -> None:
+def _fbm_relief(heights: wp.array, cfg: TerrainConfig, seed: Seed, device: str, feature_size, amplitude, first: int) -> None:
     """Write ``amplitude * fBm`` into ``heights`` (per-sample ``feature_size``/``amplitude`` if given)."""
     batch = heights.shape[0]
-    fields_ = wp.empty((batch, cfg.octaves), dtype=wp.uint32, device=device)
-    offsets = wp.empty((batch, cfg.octaves), dtype=wp.vec2, device=device)
-    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed, int(first)], outputs=[fields_, offsets], device=device)
+    fields_ = arena.empty((batch, cfg.octaves), wp.uint32, device)
+    offsets = arena.empty((batch, cfg.octaves), wp.vec2, device)
+    wp.launch(noise_kernels.octave_fields, dim=(batch, cfg.octaves), inputs=[seed.array, int(first)], outputs=[fields_, offsets], device=device)
     features = per_sample(cfg.feature_size if feature_size is None else feature_size, batch, "feature_size")
     feature_min = float(features.min())
-    features = wp.array(features, dtype=float, device=device)
-    amplitudes = wp.array(per_sample(cfg.amplitude if amplitude is None else amplitude, batch, "amplitude"), dtype=float, device=device)
+    features = arena.upload(features, float, device)
+    amplitudes = arena.upload(per_sample(cfg.amplitude if amplitude is None else amplitude, batch, "amplitude"), float, device)
     if kernel_switches().fbm_table_on(device):
         fbm_rows(fields_, offsets, cfg, features, feature_min, amplitudes, heights)
     else:

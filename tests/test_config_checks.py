@@ -175,6 +175,7 @@ INVALID = {
     "train.threads": -2,
     "train.progress": "sometimes",
     "train.dataset": "/no/such/dataset",
+    "train.capture": "sometimes",
 }
 # Free text, recorded with a preset and never interpreted: nothing can be wrong with it.
 UNCHECKED = {"lidar.source"}

@@ -124,3 +124,29 @@ def test_a_captured_graph_replays_generate_batch_on_cuda():
         copy = out.target.clone()
     torch.cuda.synchronize()
     np.testing.assert_array_equal(copy.cpu().numpy(), wt.generate_batch(4, sim, seed=13, device="cuda").target.cpu().numpy())
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_the_training_stream_with_capture_gives_the_same_pairs(workers):
+    from warp_terrain.data.stream import training_batches
+
+    sim = tiny_sim(noise=0.05)
+
+    def pairs(capture):  # each pair copied before the next is asked for
+        return [{k: v.clone() for k, v in p.items()} for p in training_batches(sim, 2, 7, 0, 1, 4, "cpu", workers, capture=capture)]
+
+    plain, replayed = pairs(False), pairs(True)
+    assert [int(p["step"]) for p in replayed] == [1, 2, 3]
+    for a, b in zip(plain, replayed, strict=True):
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert not torch.equal(replayed[0]["target"], replayed[1]["target"])  # a new batch each step
+
+
+def test_train_capture_is_checked_before_any_work(tmp_path):
+    from warp_terrain.compose import compose_run
+
+    with pytest.raises(ValueError, match="train.capture=true: a replayed batch needs a fixed world; data.randomize.enabled draws a new one"):
+        compose_run(["train.capture=true", "data.randomize.enabled=true"])
+    with pytest.raises(ValueError, match="train.capture=true: replays the live stream's batches; train.dataset="):
+        compose_run(["train.capture=true", f"train.dataset={tmp_path}"])
+    assert compose_run(["train.capture=true"]).train.capture is True

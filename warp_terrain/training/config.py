@@ -38,6 +38,9 @@ class TrainConfig:
     useful run on a 2-core CPU in about five minutes (``train=default``).
     ``dataset``: empty trains on the live stream; else a folder written by
     ``warp-terrain generate``, cycled over (``data.stream.training_batches``).
+    ``capture``: the live stream replays one recorded batch per step (``sim/graph.py``
+    ``BatchGraph``: a CUDA graph on CUDA; on the CPU, in each generator process, the same
+    launches on the same arrays); needs a fixed world (no ``data.randomize``, fBm terrain).
     """
 
     steps: int = 1000
@@ -56,6 +59,7 @@ class TrainConfig:
     threads: int = 0
     progress: bool = True
     dataset: str = ""
+    capture: bool = False
 
     def validate(self) -> None:
         for key in ("steps", "batch_size", "val_every", "val_size", "log_every", "image_every", "checkpoint_every", "prefetch"):
@@ -65,6 +69,7 @@ class TrainConfig:
             value = getattr(self, key)
             require(isinstance(value, int) and not isinstance(value, bool) and value >= 0, key, value, "must be an integer >= 0")
         require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "device", self.device, "must be auto, cpu, cuda or cuda:N")
+        require(isinstance(self.capture, bool), "capture", self.capture, "must be true or false")
         require(isinstance(self.dataset, str), "dataset", self.dataset, "must be a folder path or empty (the live stream)")
         if self.dataset:
             require(Path(self.dataset).expanduser().is_dir(), "dataset", self.dataset, "no such folder (write one with `warp-terrain generate`)")
@@ -101,7 +106,20 @@ def validate_run(cfg: RunConfig, files: bool = True) -> RunConfig:
         raise ValueError(f"data.map_size={cfg.data.map_size}: model=paper is Table 2's net for 121x121 maps; use model=unet for other sizes")
     _check_obstacle_room(cfg)
     _check_dem_mix(cfg, files)
+    _check_capture(cfg)
     return cfg
+
+
+def _check_capture(cfg: RunConfig) -> None:
+    """A replayed batch (``train.capture``) needs the live stream and a fixed world."""
+    if not cfg.train.capture:
+        return
+    if cfg.train.dataset:
+        raise ValueError(f"train.capture=true: replays the live stream's batches; train.dataset={cfg.train.dataset!r} reads them from disk")
+    if cfg.data.randomize.enabled:
+        raise ValueError("train.capture=true: a replayed batch needs a fixed world; data.randomize.enabled draws a new one per batch")
+    if cfg.terrain.source != "fbm":
+        raise ValueError(f"train.capture=true: a replayed batch needs fBm terrain; terrain.source={cfg.terrain.source!r} cuts windows on the host")
 
 
 def _check_dem_mix(cfg: RunConfig, files: bool) -> None:

@@ -31,7 +31,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, callbacks: Sequence = ()) 
     """
     tc = cfg.train
     run = session.setup(cfg, run_dir)
-    batches = training_batches(run.sim, tc.batch_size, tc.seed, run.ranks.rank, run.start, tc.steps, run.device, tc.workers, tc.prefetch, dataset=tc.dataset)
+    batches = training_batches(run.sim, tc.batch_size, tc.seed, run.ranks.rank, run.start, tc.steps, run.device, tc.workers, tc.prefetch,
+                               dataset=tc.dataset, capture=tc.capture)
     bar = tqdm(total=tc.steps, initial=run.start, disable=not (tc.progress and run.ranks.main), desc="train", unit="step", dynamic_ncols=True)
     started = time.perf_counter()
     run.model.train()

@@ -33,7 +33,7 @@ KERNEL_FILES = sorted(p.stem for p in (ROOT / "kernels").glob("*.py") if p.stem 
 #: first, the CPU's, then the process split
 QUICK_ROWS = [
     ("compile", "cpu"), ("compile", "cuda"), ("repeat", "cpu"), ("repeat", "cuda"), ("poison", "cpu"), ("poison", "cuda"),
-    ("walks", "cpu"), ("walks", "cuda"), ("cuda_vs_cpu", "cuda"),
+    ("walks", "cpu"), ("walks", "cuda"), ("cuda_vs_cpu", "cuda"), ("capture", "cpu"), ("capture", "cuda"), ("no_sync", "cuda"),
     ("stream b=1", "cuda"), ("stream b=8", "cuda"), ("switches b=8", "cuda"), ("train b=8", "cuda"),
     ("stream b=1", "cpu"), ("stream b=8", "cpu"), ("switches b=2", "cpu"), ("train b=8", "cpu"),
     ("process_split", "cpu"),
@@ -84,7 +84,7 @@ def test_the_quick_run_passes_here_and_skips_cuda_with_its_reason(quick):
             assert "CUDA" in r["reason"]
     statuses = [r["status"] for r in rows]
     assert report["counts"] == {s: statuses.count(s) for s in ("PASS", "FAIL", "SKIP")}
-    assert report["counts"]["PASS"] == (len(rows) if CUDA else 9)
+    assert report["counts"]["PASS"] == (len(rows) if CUDA else 10)
 
     env = report["environment"]
     assert (env["python"], env["torch"], env["warp"], env["warp_terrain"]) == (platform.python_version(), torch.__version__,
@@ -123,6 +123,12 @@ def test_the_quick_run_records_every_figure(quick):
     t = rows["train b=8", "cpu"]
     assert t["batch"] == 8 and t["model"]["name"] == RunConfig().model.name and t["model"]["ngf"] == RunConfig().model.ngf
     assert t["pairs_per_s"] == pytest.approx(8 / t["median_s"]) and 1 <= t["repeats"] <= 2
+    for label in ("octave5", "wide"):
+        c = rows["capture", "cpu"][label]
+        assert c["cuda_graph"] is False and c["arrays"] > 10 and len(c["seeds"]) == 3 and set(c["differing_values"].values()) == {0}
+    for batch in (1, 8):
+        r = rows[f"stream b={batch}", "cpu"]["replayed"]
+        assert r["cuda_graph"] is False and r["pairs_per_s"] == pytest.approx(batch / r["median_s"])
     split = rows["process_split", "cpu"]
     assert split["processes"] == 2 and split["heightfields"]["differing_values"] == 0 and "scan" not in split  # quick: terrains only
 
@@ -204,6 +210,29 @@ def test_a_switch_that_changes_the_points_fails_its_row(monkeypatch):
     out = _switches_row(monkeypatch, off_when_deferred)
     assert out.failures == ["deferred_writes: points differs in 3 values", "static_tile+deferred_writes: points differs in 3 values"]
     assert out.figures["ray_cast"]["static_tile"]["differing_values"] == {"points": 0}
+
+
+def test_a_replay_that_differs_fails_the_capture_row(monkeypatch):
+    real = gpucheck.BatchGraph.__call__
+
+    def stale_on_replay(self, seed=0):
+        first = not self.replays
+        out = real(self, seed)
+        if not first:
+            out.target[0, 0, 0, 0] += 1.0
+        return out
+
+    monkeypatch.setattr(gpucheck.BatchGraph, "__call__", stale_on_replay)
+    ctx = gpucheck.Context(gpucheck.make_plan(quick=True), deadline=time.monotonic() + 300)
+    out = gpucheck.check_capture(ctx, "cpu")
+    assert out.failures == ["octave5: target differs in 2 values", "wide: target differs in 2 values"]
+    assert out.figures["octave5"]["differing_values"]["points"] == 0 and "differ" in out.detail
+
+
+def test_train_options_are_named():
+    with pytest.raises(ValueError, match="train option 'fp8': choose from bf16_autocast, cudnn_benchmark"):
+        with gpucheck.train_option("fp8"):
+            pass
 
 
 def test_a_check_that_raises_is_a_fail_with_its_error(monkeypatch, tmp_path):
@@ -352,7 +381,7 @@ def test_the_command_stops_at_its_hard_time_limit(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--time-limit", "0"], "invalid time limit '0'"),
     (["--time-limit", "soon"], "invalid time limit 'soon'"),
-    (["--only", "repeat,speed"], "unknown check 'speed': choose from compile,repeat,poison,walks,cuda_vs_cpu,stream,switches,train,process_split"),
+    (["--only", "repeat,speed"], "unknown check 'speed': choose from compile,repeat,poison,walks,cuda_vs_cpu,capture,no_sync,stream,switches,train,process_split"),
     (["--json", "/nonexistent/folder/r.json"], "error: --json '/nonexistent/folder/r.json': the folder '/nonexistent/folder' does not exist"),
 ])
 def test_bad_arguments_exit_2_before_any_check(args, message, capsys):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from .progress import _add_quiet
 
-GROUPS = ("compile", "repeat", "poison", "walks", "cuda_vs_cpu", "stream", "switches", "train", "process_split")  # bench.gpucheck.GROUPS
+GROUPS = ("compile", "repeat", "poison", "walks", "cuda_vs_cpu", "capture", "no_sync", "stream", "switches", "train", "process_split")  # bench.gpucheck.GROUPS
 EXIT_FAIL = 1
 
 

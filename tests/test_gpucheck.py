@@ -229,6 +229,19 @@ def test_a_replay_that_differs_fails_the_capture_row(monkeypatch):
     assert out.figures["octave5"]["differing_values"]["points"] == 0 and "differ" in out.detail
 
 
+def test_kernel_times_sum_each_activity_over_its_launches(monkeypatch):
+    from types import SimpleNamespace
+
+    started = []
+    monkeypatch.setattr(wp, "timing_begin", lambda cuda_filter: started.append(cuda_filter))
+    monkeypatch.setattr(wp, "timing_end", lambda: [SimpleNamespace(name="cast_columns", elapsed=2.0), SimpleNamespace(name="memset", elapsed=0.5),
+                                                   SimpleNamespace(name="cast_columns", elapsed=1.5)])
+    calls = []
+    times = gpucheck.kernel_times(lambda: calls.append(1), "cpu")
+    assert calls == [1] and started == [wp.TIMING_KERNEL | wp.TIMING_MEMSET | wp.TIMING_MEMCPY]
+    assert list(times.items()) == [("cast_columns", 3.5), ("memset", 0.5)]
+
+
 def test_train_options_are_named():
     with pytest.raises(ValueError, match="train option 'fp8': choose from bf16_autocast, cudnn_benchmark"):
         with gpucheck.train_option("fp8"):

@@ -20,7 +20,8 @@
    and the per-stage times) and ``train b=N`` (optimiser steps of the default model on a fixed
    batch -> training pairs/s; on CUDA also under bf16 autocast and with cuDNN benchmark), timed
    after a warm-up with CUDA events on CUDA (Warp launched on torch's stream) and
-   ``perf_counter`` on the CPU; ``stream`` also times ``BatchGraph``'s replays;
+   ``perf_counter`` on the CPU; ``stream`` also times ``BatchGraph``'s replays and, on CUDA,
+   each kernel (Warp's activity timing);
 5. ``switches b=N``: each kernel switch (``sim/switches.py``: compile-time tile, deferred
    writes, the other fBm path) against the default on the same terrains: bit-identical points
    (heights to 1e-5 m for the fBm), and each one's speed-up, so a GPU run shows which to pick.
@@ -436,6 +437,21 @@ def timed(fn: Callable[[], object], device: str, warmup: int, repeats: int, cap_
             "wall_s": float(wall)}
 
 
+def kernel_times(fn: Callable[[], object], device: str) -> dict[str, float]:
+    """Milliseconds of each CUDA activity (kernels, memsets, copies; summed over launches of the
+    same name, largest first) in one call of ``fn``: Warp's activity timing (CUDA only)."""
+    wp.timing_begin(cuda_filter=wp.TIMING_KERNEL | wp.TIMING_MEMSET | wp.TIMING_MEMCPY)
+    try:
+        with on_torch_stream(device):
+            fn()
+    finally:
+        results = wp.timing_end()
+    totals: dict[str, float] = {}
+    for r in results:
+        totals[r.name] = totals.get(r.name, 0.0) + float(r.elapsed)
+    return dict(sorted(totals.items(), key=lambda kv: -kv[1]))
+
+
 # ------------------------------------------------------------------------------ checks
 @dataclass
 class Context:
@@ -637,6 +653,8 @@ def check_stream(ctx: Context, device: str, batch: int) -> Outcome:
     detail = f"{figures['pairs_per_s']:,.0f} pairs/s, {figures['scans_per_s']:,.0f} scans/s (" + ", ".join(
         f"{k} {1e3 * v:.2f} ms" for k, v in figures["stages_median_s"].items()) + ")"
     detail += f"; replayed{' (CUDA graph)' if graph.graph is not None else ''} {figures['replayed']['pairs_per_s']:,.0f} pairs/s"
+    if kind == "cuda":  # where the time goes, kernel by kernel
+        figures["kernels_ms"] = kernel_times(lambda: generate_batch(batch, sim, seed=SEED, device=device), device)
     if kind == "cuda" and batch >= 64:
         figures["target_pairs_per_s"] = TARGET_PAIRS_PER_S
         figures["meets_target"] = max(figures["pairs_per_s"], figures["replayed"]["pairs_per_s"]) >= TARGET_PAIRS_PER_S

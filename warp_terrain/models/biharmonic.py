@@ -36,9 +36,11 @@ COARSEST = 8
 
 
 def _laplacian(u: torch.Tensor) -> torch.Tensor:
-    """The 5-point Laplacian with replicated edges: the graph Laplacian of the grid (Neumann)."""
-    kernel = torch.tensor([[0.0, 1.0, 0.0], [1.0, -4.0, 1.0], [0.0, 1.0, 0.0]], dtype=u.dtype, device=u.device)
-    return F.conv2d(F.pad(u, (1, 1, 1, 1), mode="replicate"), kernel.view(1, 1, 3, 3))
+    """The 5-point Laplacian with replicated edges: the graph Laplacian of the grid (Neumann).
+    Four shifted slices of the padded map, not a 3x3 convolution: 1.5x faster for one map on
+    the CPU, 5x for eight (one input channel leaves a convolution nothing to vectorise)."""
+    p = F.pad(u, (1, 1, 1, 1), mode="replicate")
+    return p[..., :-2, 1:-1] + p[..., 2:, 1:-1] + p[..., 1:-1, :-2] + p[..., 1:-1, 2:] - 4.0 * u
 
 
 def _operator(u: torch.Tensor, tension: float) -> torch.Tensor:

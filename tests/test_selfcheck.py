@@ -13,7 +13,6 @@ from warp_terrain.inference.selfcheck import (
     REACH_NEAR,
     best_fill,
     candidate_fills,
-    chosen_fill,
     correction_weight,
     far_share,
     hidden_cells,
@@ -55,18 +54,18 @@ def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells()
     torch.testing.assert_close(pick(torch.stack([a, b]), choice), torch.stack([a[0], b[1]]))
 
 
-def test_chosen_fill_solves_the_thin_plate_only_for_the_maps_that_chose_it():
+def test_candidate_fills_are_each_maps_base_and_its_own_thin_plate_in_one_solve():
+    from warp_terrain.models.biharmonic import biharmonic_fill
+
     g = torch.Generator().manual_seed(3)
     scan = torch.randn(3, 1, 24, 24, generator=g)
     mask = (torch.rand(3, 1, 24, 24, generator=g) < 0.3).float()
     scan = scan * mask
     base = torch.full_like(scan, 7.0)  # stands for the model's base fill: any surface
-    for index in ([0, 0, 0], [1, 0, 1], [1, 1, 1]):
-        index = torch.tensor(index)
-        want = pick(candidate_fills(base, scan, mask), index)
-        got = chosen_fill(base, scan, mask, index)
-        assert torch.equal(got, want), index
-    assert chosen_fill(base, scan, mask, torch.zeros(3, dtype=torch.long)) is base  # nothing solved
+    fills = candidate_fills(base, scan, mask)
+    assert fills.shape == (2, 3, 1, 24, 24) and torch.equal(fills[0], base)
+    for b in range(3):  # a map's thin plate does not depend on the maps solved beside it
+        torch.testing.assert_close(fills[1, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1]), rtol=0, atol=1e-5)
 
 
 def test_the_generator_given_its_own_base_fill_returns_what_it_computes():

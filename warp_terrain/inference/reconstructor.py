@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import best_fill, candidate_fills, chosen_fill, correction_weight, far_share, hidden_cells, outer_cells, pick
+from .selfcheck import best_fill, candidate_fills, correction_weight, far_share, hidden_cells, outer_cells, pick
 
 PRETRAINED = "reconstructor.pt"
 
@@ -130,20 +130,25 @@ class Reconstructor:
         (``outer_cells``): the share measured on the random cells holds near the scan, and with
         distance from it (``far_share``) gives way to the share measured on the outer cells."""
         scan, mask = scan.to(self.device), mask.to(self.device)
-        height, sigma, base = self._predict(scan, mask)
         if not self.self_check:
-            return height, sigma
+            return self._predict(scan, mask)[:2]
         hidden = hidden_cells(mask)
         outer = outer_cells(mask) if self.check_reach else torch.zeros_like(hidden)
         hidden = hidden & ~outer
         thinned = mask * (~(hidden | outer)).to(mask.dtype)  # one pass answers both checks
         thinned_scan = scan * thinned
-        checked, _, base_thinned = self._predict(thinned_scan, thinned)
-        fills_thinned = candidate_fills(base_thinned, thinned_scan, thinned)
+        # the scan and its thinned copy go through the net, and their thin plates through one solve, together
+        n = scan.shape[0]
+        both_scans, both_masks = torch.cat([scan, thinned_scan]), torch.cat([mask, thinned])
+        heights, sigmas, bases = self._predict(both_scans, both_masks)
+        height, checked = heights[:n], heights[n:]
+        sigma = None if sigmas is None else sigmas[:n]
+        fills = candidate_fills(bases, both_scans, both_masks)
+        fills_thinned = fills[:, n:]
         choice = best_fill(fills_thinned, scan, hidden)
         chosen_thinned = pick(fills_thinned, choice)
         weight = correction_weight(checked, chosen_thinned, scan, hidden)
-        fill = chosen_fill(base, scan, mask, choice)
+        fill = pick(fills[:, :n], choice)
         if self.check_reach:
             far = far_share(mask).to(weight.dtype)
             weight = weight * (1.0 - far) + correction_weight(checked, chosen_thinned, scan, outer) * far

@@ -62,20 +62,11 @@ def correction_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.T
     return torch.where(den > 0, num / den.clamp_min(1e-30), torch.zeros_like(den)).clamp(0.0, 1.0)
 
 
-def candidate_fills(base: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """(K, B, 1, S, S): the model's base fill ``base`` of the scan and the plain thin plate of it."""
-    return torch.stack([base, biharmonic_fill(scan, mask)])
-
-
-def chosen_fill(base: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """(B, 1, S, S): ``pick(candidate_fills(base, scan, mask), index)``, the thin plate solved only
-    for the maps that chose it (candidate 1): one solve less per map that keeps its base fill."""
-    thin = index == 1
-    if not bool(thin.any()):
-        return base
-    out = base.clone()
-    out[thin] = biharmonic_fill(scan[thin], mask[thin])
-    return out
+def candidate_fills(bases: torch.Tensor, scans: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
+    """(K, N, 1, S, S): for each of the ``N`` maps, the model's base fill (``bases``) and the
+    plain thin plate of its scan, every thin plate in one batched solve (the self-check passes
+    the scan and its thinned copy together: one call costs less than two on a CPU)."""
+    return torch.stack([bases, biharmonic_fill(scans, masks)])
 
 
 def best_fill(candidates: torch.Tensor, measured: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:

@@ -70,5 +70,8 @@ mutation: $(MUTATION_STAMP)
 	@# mutmut refreshes mutants/ from changed .py files only: bring the package's data files (the
 	@# shipped model, configs) up to date too, or tests read a stale copy
 	@if [ -d mutants/warp_terrain ]; then cd warp_terrain && find . -type f ! -name '*.py' ! -path '*__pycache__*' -exec cp --parents {} ../mutants/warp_terrain/ \; ; fi
+	@# the kernels and configs are mapped into the package by the editable install; link mutants/'s own copies
+	@# (mutmut copies them at each run's start) so that edits made while a run goes on cannot reach it
+	@mkdir -p mutants/warp_terrain && ln -sfn ../kernels mutants/warp_terrain/kernels && ln -sfn ../conf mutants/warp_terrain/conf
 	$(VENV)/bin/mutmut run $(ARGS)
 	$(VENV)/bin/mutmut results

@@ -30,11 +30,15 @@ def test_bench_quick_train_and_infer(capsys):
     for r in infer["runs"]:
         assert set(r["end_to_end"]) == {"1", "4"}
         assert all(e["median_ms"] > 0 for e in r["end_to_end"].values())
+        single = r["single_map"]
+        assert (single["self_check"]["checks"], single["self_check"]["reach"], single["no_check"]["checks"]) == (True, True, False)
+        assert single["self_check"]["median_ms"] > 0 and single["no_check"]["median_ms"] > 0
         if infer["onnxruntime"]["available"]:
             for n in r["network"].values():
                 assert n["max_abs_diff_m"] < 1e-3 and n["onnxruntime"]["median_ms"] > 0
     table = format_table(report)
     assert "images/s" in table and "data wait" in table and "reconstruct(points)" in table
+    assert "no TTA, self-check + reach, 1 thread(s)" in table and "no TTA, no self-check, 1 thread(s)" in table
 
 
 def test_rays_times_the_public_cast_scans_on_its_threads_and_one(monkeypatch):

@@ -53,6 +53,17 @@ def _end_to_end(rec: Reconstructor, cloud: np.ndarray, scans: torch.Tensor, batc
     return {**timing, "median_ms": timing["median_s"] * 1e3, "maps_per_s": batch / timing["median_s"]}
 
 
+def _single_map(device: str, cloud: np.ndarray, size: int, cell: float, repeats: int) -> dict:
+    """``reconstruct`` of one cloud without the 8-orientation average (the issue's "one map from
+    a point cloud"): the shipped file as it is (its self-check on) and with the check off."""
+    out = {}
+    for name, check in (("self_check", None), ("no_check", False)):
+        rec = Reconstructor.load(device=device, tta=False, self_check=check)
+        timing = summarize(time_calls(lambda rec=rec: rec.reconstruct(cloud, size, cell), device, repeats))
+        out[name] = {**timing, "median_ms": timing["median_s"] * 1e3, "checks": rec.self_check, "reach": rec.check_reach}
+    return out
+
+
 def _network_torch(rec: Reconstructor, x: torch.Tensor, device: str, repeats: int) -> dict:
     """The generator alone on conditions ``x``, without grad."""
     def run():
@@ -86,7 +97,8 @@ def bench_infer(device=None, quick: bool = False, repeats: int | None = None) ->
     ``end_to_end``: batch 1 is ``reconstruct(points)`` on one scan (its returns only: the NaN
     rows of no-return rays dropped before the clock); batch 4 is ``project_points`` of 4 scans
     at once plus one ``predict_maps`` call (both with the Reconstructor's default test-time
-    augmentation: 8 network passes per map). ``network``: the generator alone on the conditions
+    augmentation: 8 network passes per map). ``single_map``: ``reconstruct`` of that scan
+    without the orientation average, with the shipped self-check and without it. ``network``: the generator alone on the conditions
     of those scans, torch (no grad) and ONNX Runtime (exported with ``export_onnx``). Each run
     once with torch's thread count (ONNX Runtime's intra-op threads the same) and, if that is
     more than one, once with one thread (``quick``: one thread only).
@@ -113,12 +125,13 @@ def bench_infer(device=None, quick: bool = False, repeats: int | None = None) ->
             for batch in BATCHES:
                 end_to_end[str(batch)] = _end_to_end(rec, cloud, scans, batch, size, cell, device, repeats)
                 network[str(batch)] = {"torch": _network_torch(rec, condition[:batch], device, repeats)}
+            single = _single_map(device, cloud, size, cell, repeats)
         if threads in sessions:
             for batch in BATCHES:
                 entry = network[str(batch)]
                 onnx_entry, diff = _network_onnx(rec, sessions[threads], condition[:batch], repeats, entry["torch"])
                 entry["onnxruntime"], entry["max_abs_diff_m"] = onnx_entry, diff
-        runs.append({"threads": threads, "end_to_end": end_to_end, "network": network})
+        runs.append({"threads": threads, "end_to_end": end_to_end, "single_map": single, "network": network})
     params = {"model": rec.model_config.name, "ngf": rec.model_config.ngf, "in_channels": rec.model_config.in_channels,
               "residual": rec.model_config.residual, "tta": rec.tta, "lidar": sim.lidar.name, "points_in_cloud": int(cloud.shape[0]),
               "rays_per_scan": sim.lidar.num_rays, "map_size": size, "map_cell_m": cell, "batches": list(BATCHES),

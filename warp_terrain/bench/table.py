@@ -171,8 +171,18 @@ def _infer_batch_rows(r: dict, run: dict, batch: str, e: dict) -> list[Row]:
     return rows
 
 
+def _single_map_rows(run: dict) -> list[Row]:
+    """One map without the orientation average, with the shipped self-check and without it."""
+    rows = []
+    for e in run["single_map"].values():
+        what = ("self-check" + (" + reach" if e["reach"] else "")) if e["checks"] else "no self-check"
+        rows.append(("infer 1 map" if not rows else "", f"reconstruct(points), no TTA, {what}, {run['threads']} thread(s)", _ms(e["median_s"]), ""))
+    return rows
+
+
 def _infer_rows(r: dict) -> list[Row]:
     rows = [row for run in r["runs"] for batch, e in run["end_to_end"].items() for row in _infer_batch_rows(r, run, batch, e)]
+    rows += [row for run in r["runs"] if "single_map" in run for row in _single_map_rows(run)]
     if not r["onnxruntime"]["available"]:
         rows.append(_missing_row("  onnxruntime", r["onnxruntime"]))
     return rows

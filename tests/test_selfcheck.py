@@ -182,6 +182,47 @@ def test_outer_cells_are_the_observed_cells_farthest_from_the_sensor():
     assert not bool(outer_cells(torch.zeros(1, 1, 9, 9)).any())  # nothing observed: nothing hidden
 
 
+def test_far_share_takes_near_zero_and_keeps_a_floating_masks_dtype():
+    mask = torch.zeros(1, 1, 11, 11, dtype=torch.float64)
+    mask[0, 0, 5, 5] = 1.0
+    share = far_share(mask, 0, 4)  # near = 0: the ramp starts at the observed cell
+    assert share.dtype == torch.float64
+    assert [float(share[0, 0, 5, 5 + k]) for k in range(6)] == [0.0, 0.25, 0.5, 0.75, 1.0, 1.0]
+    assert far_share(mask.bool()).dtype == torch.float32 and far_share(mask.half()).dtype == torch.float16
+
+
+def _cells(size: int, *offsets: tuple[int, int]) -> torch.Tensor:
+    """(1, 1, size, size) mask observed at the given (row, column) offsets from the centre."""
+    mask = torch.zeros(1, 1, size, size)
+    c = size // 2
+    for dr, dc in offsets:
+        mask[0, 0, c + dr, c + dc] = 1.0
+    return mask
+
+
+def test_outer_cells_measure_from_the_map_centre_per_map():
+    """Two cells on one row, 5 and 4 cells from the centre, on either side, and the same mirrored
+    on a second map: the farther one of each map is picked (a centre off by half a cell or one
+    picks the wrong one), each map by its own cut (one cut over the batch would pick two of one
+    map's cells and none of the other's)."""
+    mask = torch.cat([_cells(21, (0, 5), (0, -4)), _cells(21, (0, 4), (0, -5))])
+    picked = outer_cells(mask, 0.5)
+    assert picked.shape == mask.shape
+    assert picked[0, 0, 10].nonzero().flatten().tolist() == [15] and picked[1, 0, 10].nonzero().flatten().tolist() == [5]
+    assert int(picked.sum()) == 2
+    # map 1's cells all lie inside map 0's: still its own farthest cell is picked
+    wide = torch.cat([_cells(21, (0, 9), (0, 8), (0, 1)), _cells(21, (0, 2), (0, 1), (1, 0))])
+    assert outer_cells(wide, 0.34).sum(dim=(1, 2, 3)).tolist() == [1, 1]
+
+
+def test_outer_cells_never_hide_more_than_their_share():
+    """Four cells at radius 3 and four at radius 5: the outermost quarter's cut falls on radius 5
+    itself, and cells at the cut are kept: at most ``share`` of the observed cells are hidden."""
+    mask = _cells(21, (3, 0), (-3, 0), (0, 3), (0, -3), (5, 0), (-5, 0), (0, 5), (0, -5))
+    assert int(outer_cells(mask, 0.25).sum()) == 0
+    assert int(outer_cells(mask, 0.6).sum()) == 4  # the cut between the rings: the outer ring
+
+
 def test_check_reach_falls_back_far_from_the_scan_where_the_outer_cells_refute_the_model():
     """A +1 m correction on an exact plane: the near check and the far check (the scan's outer
     cells hidden) both refute it, so with ``check_reach`` the map is the plane everywhere, far

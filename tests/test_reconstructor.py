@@ -260,3 +260,16 @@ def test_reconstruct_command_writes_map_and_preview(tmp_path, capsys):
     assert out.with_suffix(".png").stat().st_size > 0
     assert main(["reconstruct", str(tmp_path / "missing.las")]) == 2
     assert "missing.las" in capsys.readouterr().err
+
+
+def test_the_papers_net_is_refused_for_another_map_size_before_any_work():
+    class Untouched(torch.nn.Module):
+        def forward(self, x):
+            raise AssertionError("the net ran")
+
+    rec = Reconstructor(Untouched(), ModelConfig(name="paper"), device="cpu")
+    points = np.array([[1.0, 0.0, -1.8], [0.0, 1.0, -1.8]], dtype=np.float32)
+    with pytest.raises(ValueError, match=r"map_size=61: this model is the paper's net for 121x121 maps"):
+        rec.reconstruct(points, map_size=61, map_cell=0.25)
+    with pytest.raises(AssertionError, match="the net ran"):  # at 121 cells it goes on to the net
+        rec.reconstruct(points, map_size=121, map_cell=0.25)

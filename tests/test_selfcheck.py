@@ -45,13 +45,17 @@ def test_correction_weight_is_the_least_squares_share_clamped():
 
 
 def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells():
-    measured = torch.zeros(2, 1, 4, 4)
+    measured = torch.stack([torch.full((1, 4, 4), 1.0), torch.full((1, 4, 4), -0.3)])
     hidden = torch.ones(2, 1, 4, 4, dtype=torch.bool)
-    a = torch.stack([torch.full((1, 4, 4), 0.1), torch.full((1, 4, 4), 0.5)])  # candidate 0 per map
-    b = torch.stack([torch.full((1, 4, 4), 0.3), torch.full((1, 4, 4), -0.2)])  # candidate 1 per map
+    hidden[:, :, 0, 0] = False  # a kept cell: what a candidate does there does not count
+    a = torch.stack([torch.full((1, 4, 4), 0.8), torch.full((1, 4, 4), 0.5)])  # candidate 0 per map: 0.2 and 0.8 off
+    b = torch.stack([torch.full((1, 4, 4), 1.1), torch.full((1, 4, 4), -0.2)])  # candidate 1 per map: 0.1 and 0.1 off
+    b[0, 0, 0, 0] = a[1, 0, 0, 0] = 100.0
     choice = best_fill(torch.stack([a, b]), measured, hidden)
-    assert choice.tolist() == [0, 1]
-    torch.testing.assert_close(pick(torch.stack([a, b]), choice), torch.stack([a[0], b[1]]))
+    assert choice.tolist() == [1, 1]
+    choice = best_fill(torch.stack([b, a]), measured, hidden)
+    assert choice.tolist() == [0, 0]
+    torch.testing.assert_close(pick(torch.stack([a, b]), torch.tensor([0, 1])), torch.stack([a[0], b[1]]))
 
 
 def test_candidate_fills_are_each_maps_base_and_its_own_thin_plate_in_one_solve():

@@ -22,7 +22,6 @@ class GANLoss(nn.Module):
             self.loss = nn.MSELoss()
         else:
             raise ValueError(f"unknown gan_mode {gan_mode!r}: expected vanilla or lsgan")
-        self.gan_mode = gan_mode
         self.register_buffer("real_label", torch.tensor(float(target_real_label)))
         self.register_buffer("fake_label", torch.tensor(float(target_fake_label)))
 

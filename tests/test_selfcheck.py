@@ -44,6 +44,17 @@ def test_correction_weight_is_the_least_squares_share_clamped():
     assert correction_weight(fill, fill, measured, hidden).abs().max() == 0  # no correction: weight 0
 
 
+def test_a_small_correction_gets_its_exact_weight():
+    """Centimetre corrections on four hidden cells (sum of squares 4e-4 m^2, far below 1): the
+    weight is still the least-squares one, not cut to zero or shrunk by a floor on the sum."""
+    fill = torch.zeros(1, 1, 4, 4)
+    hidden = torch.zeros(1, 1, 4, 4, dtype=torch.bool)
+    hidden[..., 1:3, 1:3] = True
+    model = fill + 0.01
+    measured = fill + 0.005
+    torch.testing.assert_close(correction_weight(model, fill, measured, hidden).flatten(), torch.tensor([0.5]), rtol=0, atol=1e-6)
+
+
 def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells():
     measured = torch.stack([torch.full((1, 4, 4), 1.0), torch.full((1, 4, 4), -0.3)])
     hidden = torch.ones(2, 1, 4, 4, dtype=torch.bool)

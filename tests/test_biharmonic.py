@@ -72,6 +72,19 @@ def test_fill_solves_the_thin_plate_it_states(tension):
     np.testing.assert_array_equal(out[known], z[known].astype(np.float32))
 
 
+def test_full_tension_is_the_membrane_of_the_harmonic_baseline():
+    """``tension=1``: the CG pyramid solves the same Laplace interpolation as the exact sparse
+    solve of ``evaluation.baselines.harmonic_fill`` (the membrane's CG converges fast: measured
+    2e-4 of the field's range on rings with the default steps)."""
+    from warp_terrain.evaluation.baselines import harmonic_fill
+
+    z, known = smooth_field(48, 3), rings(48, 4)
+    out = biharmonic_fill(t(z * known), t(known), tension=1.0)
+    exact = harmonic_fill(t(z * known), t(known))
+    torch.testing.assert_close(out, exact, rtol=0, atol=1e-3 * float(np.ptp(z)))
+    np.testing.assert_array_equal(out[0, 0].numpy()[known], z[known].astype(np.float32))
+
+
 def test_without_tension_it_is_skimages_biharmonic_inpainting():
     """skimage's 13-point stencil, reflected at the border, is ``(G^T G)^2``: the same surface,
     holes at the edges included."""
@@ -129,8 +142,9 @@ def test_batched_fill_is_per_map():
 
 def test_pyramid_levels_and_bad_arguments():
     assert [pyramid_levels(s) for s in (8, 9, 16, 17, 121)] == [1, 2, 2, 3, 5]
-    with pytest.raises(ValueError, match="tension"):
-        biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), tension=1.0)
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValueError, match=r"tension must be in \[0, 1\]"):
+            biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), tension=bad)
 
 
 def test_observed_plane_is_the_least_squares_plane():
@@ -185,9 +199,10 @@ def condition(seed: int = 13, size: int = 40) -> torch.Tensor:
     return torch.cat([t(z * known), t(known)], dim=1)
 
 
-def test_untrained_model_starting_from_the_fill_is_the_fill():
+@pytest.mark.parametrize("refine", [0, 2])
+def test_untrained_model_starting_from_the_fill_is_the_fill(refine):
     x = condition()
-    out = build_generator(model_config()).eval()(x)
+    out = build_generator(model_config(refine=refine)).eval()(x)
     torch.testing.assert_close(out[:, :1], biharmonic_fill(x[:, :1], x[:, 1:]), rtol=0, atol=0)
 
 
@@ -228,15 +243,42 @@ def test_observed_cells_move_at_most_the_bound():
     assert moved[observed].max() <= 0.1 + 1e-6 and moved[~observed].max() > 1.0
 
 
-def test_generator_exports_to_onnx_and_matches(tmp_path):
+@pytest.mark.parametrize("refine", [0, 2])
+def test_generator_exports_to_onnx_and_matches(tmp_path, refine):
     onnxruntime = pytest.importorskip("onnxruntime")
-    g = build_generator(model_config(start_from_fill=False)).eval()
+    g = build_generator(model_config(start_from_fill=False, refine=refine)).eval()
     x = condition(size=48)
     path = tmp_path / "g.onnx"
     torch.onnx.export(g, (x,), str(path), input_names=["condition"], output_names=["out"], dynamo=False)
     got = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"condition": x.numpy()})[0]
     with torch.no_grad():
         np.testing.assert_allclose(got, g(x).numpy(), rtol=0, atol=1e-3)
+
+
+def test_the_refine_head_lets_one_input_cell_reach_its_own_output_cell():
+    """pix2pix's outermost level makes the output by a stride-2 transposed convolution of
+    half-resolution features: two neighbouring input cells land in the same 2x2 block of
+    features. With the refine head the input itself is convolved at full resolution, so the
+    output at a cell depends on that cell's input through a 3x3 path: a change confined to one
+    cell moves the output there by the head's direct weights (checked against the head alone)."""
+    from warp_terrain.models.unet import UNet
+
+    torch.manual_seed(3)
+    net = UNet(2, 1, ngf=4, depth=3, norm="none", dropout=0.0, refine=1).eval()
+    assert net.head is not None and [type(m).__name__ for m in net.head.body] == ["Conv2d", "ReLU"]
+    x = torch.randn(1, 2, 16, 16)
+    y = x.clone()
+    y[0, 0, 7, 8] += 1.0
+    with torch.no_grad():
+        features = net.model(x)  # 16 is a multiple of 2**3: no padding, no crop
+        direct = net.head(features, y) - net.head(features, x)  # the head's own path from the input
+        total = net(y) - net(x)
+    assert direct[0, 0, 7, 8].abs() > 0 and direct.abs()[0, 0].sum() == direct[0, 0, 6:9, 7:10].abs().sum()
+    assert torch.isfinite(total).all() and (total - direct).abs().max() < total.abs().max()
+    with pytest.raises(ValueError, match="refine"):
+        UNet(2, 1, ngf=4, depth=3, refine=-1)
+    with pytest.raises(ValueError, match="refine=2: only the unet generator"):
+        ModelConfig(name="paper", refine=2).validate()
 
 
 def test_config_names_bad_fill_and_reference():

@@ -143,7 +143,7 @@ def test_nearest_reproduces_a_checkerboard_from_tile_centres():
     np.testing.assert_array_equal(out[0, 0].numpy(), board)
 
 
-@pytest.mark.parametrize("name", ["biharmonic", "telea", "ns"])
+@pytest.mark.parametrize("name", ["biharmonic", "harmonic", "telea", "ns"])
 def test_inpainting_keeps_observed_cells_and_fills_a_constant(name, rng):
     """Observed cells exactly, a constant map and the map's border; what is specific to each
     method (a biharmonic field, beating nearest on sparse cells) is in test_known_answers."""
@@ -167,7 +167,8 @@ def test_inpainting_keeps_observed_cells_and_fills_a_constant(name, rng):
     out = fill(t(np.where(known, pit, 0)), t(known))[0, 0].numpy()
     np.testing.assert_allclose(out[~known], 3.0, rtol=0, atol=1e-4)
     # A ramp along the border, 0.1 m per cell, with only that row (or column) unknown: measured
-    # RMSE 4.4 mm (biharmonic), 11-12 mm (Telea), 14 mm (Navier-Stokes); tolerance 20 mm. Values
+    # RMSE 4.4 mm (biharmonic), 0 (harmonic: a plane is discrete-harmonic where its
+    # neighbours are known), 11-12 mm (Telea), 14 mm (Navier-Stokes); tolerance 20 mm. Values
     # taken one cell along the ramp are 0.1 m off (a crop shifted by one cell: 97-109 mm).
     ramp = plane((24, 24), a=0.0, b=0.1, c=3.0)
     for z, unknown in ((ramp, np.s_[0, :]), (ramp.T, np.s_[:, 0])):
@@ -193,7 +194,7 @@ def test_every_baseline_on_empty_full_and_batched_maps(rng):
     mask[0] = 0  # nothing observed: zeros
     mask[1] = 1  # everything observed: the scan
     scan, m = torch.from_numpy(z * mask), torch.from_numpy(mask)
-    assert set(BASELINES) == {"nearest", "linear", "biharmonic", "telea", "ns", "plane"}
+    assert set(BASELINES) == {"nearest", "linear", "biharmonic", "harmonic", "telea", "ns", "plane"}
     for name, fill in BASELINES.items():
         out = fill(scan, m)
         assert out.shape == scan.shape and out.dtype == torch.float32, name

@@ -235,3 +235,39 @@ def test_the_memory_estimate_counts_the_terrain_scratch():
     # freed before the scan allocates, so the estimate stands for the wide world as it is
     assert memory.batch_bytes(2, size, rays, maps, scratch) == memory.batch_bytes(2, size, rays, maps)
     assert memory.batch_bytes(2, size, rays, maps, 10**9) == 2 * (4 * size**2 + 10**9)
+
+
+def test_plain_probability_turns_a_batchs_landforms_off_and_leaves_every_other_draw():
+    """``data.randomize.plain_probability``: that share of the wide world's batches has tilt,
+    relief and landforms off (plain fBm); the sensor, noise, obstacle and relief draws are those
+    of the same seed without the mix, and a batch that is not plain keeps every landform."""
+    from warp_terrain.sim.randomize import randomize
+
+    sim = preset_sim("wide")
+    sim.data.randomize.enabled = True
+    sim.data.randomize.noise_max = 0.1
+    mixed = preset_sim("wide")
+    mixed.data.randomize.enabled = True
+    mixed.data.randomize.noise_max = 0.1
+    mixed.data.randomize.plain_probability = 0.5
+    plain_batches = 0
+    for seed in range(64):
+        (a, amp_a, feat_a), (b, amp_b, feat_b) = randomize(sim, 4, seed), randomize(mixed, 4, seed)
+        assert np.array_equal(amp_a, amp_b) and np.array_equal(feat_a, feat_b)
+        assert a.lidar == b.lidar and a.data.noise == b.data.noise and a.terrain.octaves == b.terrain.octaves
+        assert all(getattr(a.terrain, k) == getattr(b.terrain, k) for k in OBSTACLE_KINDS)
+        if b.terrain.tilt.enabled:
+            assert b.terrain.tilt == a.terrain.tilt and b.terrain.relief == a.terrain.relief and b.terrain.landforms == a.terrain.landforms
+        else:
+            plain_batches += 1
+            assert not b.terrain.relief.enabled and not b.terrain.landforms.enabled()
+    assert 20 <= plain_batches <= 44  # about half of 64 (binomial: 99.9 % within these bounds)
+    mixed.data.randomize.plain_probability = 1.0
+    assert all(not randomize(mixed, 2, seed)[0].terrain.tilt.enabled for seed in range(8))
+    heights = wt.generate_batch(2, mixed, seed=3, device="cpu").heights
+    bare = preset_sim("wide")
+    bare.terrain.tilt.enabled = bare.terrain.relief.enabled = False
+    bare.terrain.landforms = LandformConfig()
+    bare.data.randomize.enabled = True
+    bare.data.randomize.noise_max = 0.1  # no mix: the landforms are off in the preset itself
+    assert torch.equal(heights, wt.generate_batch(2, bare, seed=3, device="cpu").heights)

@@ -11,6 +11,8 @@ from warp_terrain.inference.selfcheck import (
     CHECK_SHARE,
     REACH_FAR,
     REACH_NEAR,
+    SIGMA_COVERAGE,
+    SIGMA_MIN_CELLS,
     best_fill,
     candidate_fills,
     correction_weight,
@@ -18,6 +20,7 @@ from warp_terrain.inference.selfcheck import (
     hidden_cells,
     outer_cells,
     pick,
+    sigma_factor,
 )
 from warp_terrain.models.config import ModelConfig
 from warp_terrain.models.fill import FillResidualGenerator
@@ -69,7 +72,7 @@ def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells()
     torch.testing.assert_close(pick(torch.stack([a, b]), torch.tensor([0, 1])), torch.stack([a[0], b[1]]))
 
 
-def test_candidate_fills_are_each_maps_base_and_its_own_thin_plate_in_one_solve():
+def test_candidate_fills_are_each_maps_base_its_thin_plate_and_its_membrane_in_one_solve():
     from warp_terrain.models.biharmonic import biharmonic_fill
 
     g = torch.Generator().manual_seed(3)
@@ -78,9 +81,16 @@ def test_candidate_fills_are_each_maps_base_and_its_own_thin_plate_in_one_solve(
     scan = scan * mask
     base = torch.full_like(scan, 7.0)  # stands for the model's base fill: any surface
     fills = candidate_fills(base, scan, mask)
-    assert fills.shape == (2, 3, 1, 24, 24) and torch.equal(fills[0], base)
-    for b in range(3):  # a map's thin plate does not depend on the maps solved beside it
+    assert fills.shape == (3, 3, 1, 24, 24) and torch.equal(fills[0], base)
+    for b in range(3):  # a map's fills do not depend on the maps solved beside it, nor on their tension
         torch.testing.assert_close(fills[1, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1]), rtol=0, atol=1e-5)
+        torch.testing.assert_close(fills[2, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1], tension=1.0), rtol=0, atol=1e-5)
+    assert (fills[1] - fills[2]).abs().max() > 0.1  # two different fills
+    assert torch.equal(candidate_fills(base, scan, mask, tensions=()), base[None])
+    one = candidate_fills(base, scan, mask, tensions=(0.5,))
+    torch.testing.assert_close(one[1], biharmonic_fill(scan, mask, tension=0.5), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="tension must be in"):
+        biharmonic_fill(scan, mask, tension=torch.tensor([0.0, 1.0, 2.0]).view(3, 1, 1, 1))
 
 
 def test_the_generator_given_its_own_base_fill_returns_what_it_computes():
@@ -286,3 +296,96 @@ def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):
     with pytest.raises(ValueError, match="check_reach: needs self_check"):
         package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, self_check=False, check_reach=True)
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_package_model_records_check_sigma_and_refuses_it_without_a_head_or_the_check(tmp_path):
+    from warp_terrain.evaluation.calibrate import package_model
+    from warp_terrain.models.pix2pix import build_generator
+
+    for uncertainty in (True, False):
+        cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3, uncertainty=uncertainty).validate()
+        Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / f"u{uncertainty}.pt")
+    out = package_model(tmp_path / "uTrue.pt", tmp_path / "sigma.pt", calibrate=0, self_check=True, check_sigma=True, check_membrane=True)
+    assert out["check_sigma"] is True and Reconstructor.load(tmp_path / "sigma.pt", device="cpu").check_sigma
+    assert out["check_membrane"] is True and Reconstructor.load(tmp_path / "sigma.pt", device="cpu").check_tensions == (0.0, 1.0)
+    with pytest.raises(ValueError, match="check_membrane: needs self_check"):
+        package_model(tmp_path / "uTrue.pt", tmp_path / "x.pt", calibrate=0, check_membrane=True)
+    assert not Reconstructor.load(tmp_path / "sigma.pt", device="cpu", check_sigma=False).check_sigma
+    assert not Reconstructor.load(tmp_path / "uTrue.pt", device="cpu").check_sigma  # off unless the file says so
+    with pytest.raises(ValueError, match="check_sigma: needs self_check"):
+        package_model(tmp_path / "uTrue.pt", tmp_path / "x.pt", calibrate=0, check_sigma=True)
+    with pytest.raises(ValueError, match="check_sigma needs a model with an uncertainty head"):
+        package_model(tmp_path / "uFalse.pt", tmp_path / "x.pt", calibrate=0, self_check=True, check_sigma=True)
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_sigma_factor_puts_the_coverage_share_of_the_checked_cells_within_k_sigma():
+    """Errors of 0.01, 0.02, ..., 1.00 m on 100 checked cells with sigma 0.5 m: k sigma must be
+    the 68.27 % quantile of the errors (torch's linear interpolation: 0.6859 m), so k = 1.3718;
+    cells not checked do not count, and a map with too few checked cells keeps k = 1."""
+    measured = torch.zeros(2, 1, 10, 12)
+    predicted = torch.zeros_like(measured)
+    predicted[0, 0, :, :10] = torch.arange(1, 101, dtype=torch.float32).view(10, 10) / 100
+    predicted[0, 0, :, 10:] = 50.0  # wild cells outside the checked ones
+    cells = torch.zeros_like(measured, dtype=torch.bool)
+    cells[0, 0, :, :10] = True
+    cells[1, 0, 0, :5] = True  # 5 cells: below SIGMA_MIN_CELLS
+    sigma = torch.full_like(measured, 0.5)
+    k = sigma_factor(predicted, sigma, measured, cells).flatten()
+    torch.testing.assert_close(k, torch.tensor([0.68590 / 0.5, 1.0]), rtol=0, atol=1e-4)
+    inside = ((predicted - measured).abs() <= k.view(-1, 1, 1, 1) * sigma)[0][cells[0]]
+    assert int(inside.sum()) == 68  # 68 of the 100 cells lie within the scaled sigma
+    assert SIGMA_MIN_CELLS > 5 and 0.68 < SIGMA_COVERAGE < 0.69
+
+
+class Constant(torch.nn.Module):
+    """A 'net' whose correction is a constant and whose log-variance is ``log_variance``."""
+
+    def __init__(self, value: float, log_variance: float):
+        super().__init__()
+        self.value, self.log_variance = value, log_variance
+
+    def forward(self, x):
+        return torch.cat([torch.full_like(x[:, :1], self.value), torch.full_like(x[:, :1], self.log_variance)], dim=1)
+
+
+def test_check_sigma_scales_each_maps_sigma_to_its_checked_errors():
+    """A 'net' that lifts a plane by 0.3 m and claims sigma = 1 m: the check refutes the lift (the
+    map is the plane, its error on hidden cells about 0), and the per-map factor shrinks the
+    sigma to those errors; without ``check_sigma`` the claimed 1 m stays."""
+    scan, mask, truth = plane_scan()
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, base_fill="plane_biharmonic", height_reference="plane", uncertainty=True)
+
+    def rec(check_sigma):
+        g = FillResidualGenerator(Constant(0.3, 0.0), base="plane_biharmonic", reference="plane")
+        return Reconstructor(g, cfg, device="cpu", tta=False, self_check=True, check_reach=True, check_sigma=check_sigma)
+
+    height, plain = rec(False).predict_maps_with_uncertainty(scan, mask)
+    _, scaled = rec(True).predict_maps_with_uncertainty(scan, mask)
+    assert float((height - truth).abs().max()) < 0.01
+    torch.testing.assert_close(plain, torch.ones_like(plain), rtol=0, atol=1e-6)
+    assert float(scaled.max()) < 0.01 and float(scaled.min()) > 0
+
+
+def test_the_check_moves_the_fill_towards_the_membrane_by_the_share_the_scan_supports():
+    """On a scan whose hidden cells are each the mean of their neighbours (a membrane's world),
+    the checked fill is the membrane; on a plane scan the thin plate and the membrane agree only
+    where the plane is harmonic, and the check keeps the plane (the thin plate reproduces it)."""
+    from warp_terrain.models.biharmonic import biharmonic_fill
+
+    scan, mask, truth = plane_scan()
+    rec = reconstructor(0.0, self_check=True)
+    assert rec.check_tensions == (0.0,)  # a file that does not name the membrane checks without it
+    rec.check_tensions = (0.0, 1.0)
+    torch.testing.assert_close(rec.predict_maps(scan, mask), truth, rtol=0, atol=2e-3)
+    # the membrane's own world: observed heights drawn from a membrane fill of sparse anchors
+    g = torch.Generator().manual_seed(9)
+    anchors = (torch.rand(1, 1, 48, 48, generator=g) < 0.02).float()
+    world = biharmonic_fill(torch.randn(1, 1, 48, 48, generator=g) * anchors, anchors, tension=1.0)
+    membrane_mask = torch.maximum(anchors, (torch.rand(1, 1, 48, 48, generator=g) < 0.3).float())
+    out = rec.predict_maps(world * membrane_mask, membrane_mask)
+    thin_plate = biharmonic_fill(world * membrane_mask, membrane_mask)
+    unobserved = membrane_mask == 0
+    assert float((out - world)[unobserved].square().mean()) < 0.2 * float((thin_plate - world)[unobserved].square().mean())
+    no_membrane = reconstructor(0.0, self_check=True)
+    assert float((no_membrane.predict_maps(world * membrane_mask, membrane_mask) - world)[unobserved].abs().max()) > 0.01

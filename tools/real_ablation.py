@@ -1,46 +1,114 @@
 """The real suite and the synthetic settings for the classical fills, the torch fills and models.
 
-usage: python tools/real_ablation.py [NAME=MODEL ...]
+usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL ...
   MODEL: a checkpoint, a Reconstructor file, or `shipped`; NAME containing `_check` turns the
-  self-check on, `_reach` / `_noreach` the check's reach on / off (else as the file says), `_notta` the 8-orientation average off. Writes tools/real_ablation_<names>.json
-  beside printing each figure (needs `make real-data`; README, "Transfer to real ground").
+  self-check on, `_reach` / `_noreach` the check's reach on / off, `_sigma` / `_nosigma` the
+  check's per-map sigma on / off (else as the file says), `_notta` the 8-orientation average
+  off, `_nomembrane` the check's membrane candidate off (the thin plate alone beside the base
+  fill). The classical fills are scored too; with --fills-cache their scores are read from FILE
+  when it exists (the fills are deterministic: same seeds, same maps) and written to it when
+  not. Writes tools/real_ablation_<names>.json and prints, per family, each model's RMSE over
+  the best classical fill's and its share of scored cells within 1 sigma (needs `make
+  real-data`; README, "Transfer to real ground").
 """
 
+import argparse
 import json
 import os
-import sys
 
 import torch
 
 from warp_terrain.evaluation.baselines import BASELINES
 from warp_terrain.evaluation.metrics import masked_rmse
-from warp_terrain.evaluation.real import evaluate_real
+from warp_terrain.evaluation.real import evaluate_real, headline
 from warp_terrain.evaluation.testsets import make_eval_set
-from warp_terrain.inference.predictor import load_predictor
+from warp_terrain.inference.predictor import reconstructor_predictor
+from warp_terrain.inference.reconstructor import Reconstructor
+from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS, THIN_PLATE_ONLY
 from warp_terrain.models.biharmonic import biharmonic_fill
 from warp_terrain.models.fill import push_pull_fill
 
-torch.set_num_threads(int(os.environ.get("THREADS", "1")))
-predictors = dict(BASELINES)
-predictors["push_pull"] = push_pull_fill
-predictors["bh_torch"] = biharmonic_fill
-for arg in sys.argv[1:]:
-    name, path = arg.split("=", 1)
-    predictors[name] = load_predictor(None if path == "shipped" else path, device="cpu", tta="_notta" not in name, self_check="_check" in name,
-                                      check_reach=False if "_noreach" in name else (True if "_reach" in name else None))
-real = evaluate_real(predictors, size=32, repeats=3, device="cpu", progress=lambda line: print(line, flush=True))
-synthetic = {}
-for setting in ("octave5", "octave3", "flat_cylinders", "negative_obstacles"):
-    for noise in (0.0, 0.1):
-        ts = make_eval_set(setting, noise, size=32, device="cpu")
-        unobserved = ts.mask < 0.5
-        row = {}
-        for name, f in predictors.items():
-            out = f(ts.scan, ts.mask)
-            out = out[0] if isinstance(out, tuple) else out
-            row[name] = masked_rmse(out.float(), ts.target, unobserved)
-        synthetic[f"{setting}/{noise}"] = row
-        print(setting, noise, {k: round(v, 4) for k, v in row.items()}, flush=True)
-out = os.path.join(os.path.dirname(__file__), "real_ablation_" + "_".join(a.split("=")[0] for a in sys.argv[1:]) + ".json")
-with open(out, "w") as f:
-    json.dump({"real": real, "synthetic": synthetic}, f)
+SETTINGS = ("octave5", "octave3", "flat_cylinders", "negative_obstacles")
+NOISES = (0.0, 0.1)
+
+
+def flag(name: str, key: str):
+    return False if f"_no{key}" in name else (True if f"_{key}" in name else None)
+
+
+def models(args) -> dict:
+    out = {}
+    for arg in args:
+        name, path = arg.split("=", 1)
+        file = None if path == "shipped" else path
+        rec = Reconstructor.load(file, device="cpu", tta="_notta" not in name, self_check="_check" in name,
+                                 check_reach=flag(name, "reach"), check_sigma=flag(name, "sigma"))
+        if flag(name, "membrane") is not None:
+            rec.check_tensions = CANDIDATE_TENSIONS if flag(name, "membrane") else THIN_PLATE_ONLY
+        out[name] = reconstructor_predictor(rec, 16, file)
+    return out
+
+
+def synthetic_scores(predictors: dict, size: int) -> dict:
+    rows = {}
+    for setting in SETTINGS:
+        for noise in NOISES:
+            ts = make_eval_set(setting, noise, size=size, device="cpu")
+            unobserved = ts.mask < 0.5
+            row = {}
+            for name, f in predictors.items():
+                out = f(ts.scan, ts.mask)
+                pred, sigma = out if isinstance(out, tuple) else (out, None)
+                row[name] = {"rmse_unobserved": masked_rmse(pred.float(), ts.target, unobserved)}
+                if sigma is not None:
+                    row[name]["within_1sigma"] = float(((pred - ts.target).abs() <= sigma)[unobserved].float().mean())
+            rows[f"{setting}/{noise}"] = row
+            print(setting, noise, {k: round(v["rmse_unobserved"], 4) for k, v in row.items()}, flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fills-cache", help="JSON of the classical fills' scores: read if it exists, else written")
+    parser.add_argument("--size", type=int, default=32, help="maps per family and per synthetic setting")
+    parser.add_argument("models", nargs="*", help="NAME=MODEL")
+    args = parser.parse_args()
+    torch.set_num_threads(int(os.environ.get("THREADS", "1")))
+    fills = dict(BASELINES)
+    fills["push_pull"] = push_pull_fill
+    fills["bh_torch"] = biharmonic_fill
+    say = lambda line: print(line, flush=True)  # noqa: E731
+    nets = models(args.models)
+    if args.fills_cache and os.path.exists(args.fills_cache):
+        with open(args.fills_cache) as f:
+            cached = json.load(f)
+        real = evaluate_real(nets, size=args.size, repeats=3, device="cpu", progress=say)
+        for entry in real["families"]:
+            entry["metrics"] = {**cached["real"][entry["family"]], **entry["metrics"]}
+        real["methods"] = list(fills) + list(nets)
+        synthetic = synthetic_scores(nets, args.size)
+        for key, row in synthetic.items():
+            synthetic[key] = {**cached["synthetic"][key], **row}
+    else:
+        real = evaluate_real({**fills, **nets}, size=args.size, repeats=3, device="cpu", progress=say)
+        synthetic = synthetic_scores({**fills, **nets}, args.size)
+        if args.fills_cache:
+            with open(args.fills_cache, "w") as f:
+                json.dump({"real": {e["family"]: {k: v for k, v in e["metrics"].items() if k in fills} for e in real["families"]},
+                           "synthetic": {k: {m: v for m, v in row.items() if m in fills} for k, row in synthetic.items()}}, f)
+    names = "_".join(a.split("=")[0] for a in args.models) or "fills"
+    with open(os.path.join(os.path.dirname(__file__), f"real_ablation_{names}.json"), "w") as f:
+        json.dump({"real": real, "synthetic": synthetic}, f)
+    rows = [(e["family"], {m: v[headline(e)] for m, v in e["metrics"].items()}, {m: v.get("within_1sigma") for m, v in e["metrics"].items()})
+            for e in real["families"]]
+    rows += [(key, {m: v["rmse_unobserved"] for m, v in row.items()}, {m: v.get("within_1sigma") for m, v in row.items()})
+             for key, row in synthetic.items()]
+    print("\nmodel / best classical fill (within 1 sigma)")
+    for family, rmse, within in rows:
+        best = min((m for m in rmse if m in BASELINES), key=rmse.get)
+        cells = [f"{m} {rmse[m] / rmse[best]:.2f}" + (f" ({100 * within[m]:.0f} %)" if within.get(m) is not None else "") for m in nets]
+        print(f"{family[:36]:36s} best {best:10s} {rmse[best]:.4f}  " + "  ".join(cells))
+
+
+if __name__ == "__main__":
+    main()

@@ -254,6 +254,11 @@ def add_package_model(sub) -> None:
     p.add_argument("--check-reach", action="store_true",
                    help="with --self-check: the check's weight holds near the scan only; far from it the weight measured "
                         "on the scan's outermost observed cells, hidden (inference/selfcheck.py)")
+    p.add_argument("--check-sigma", action="store_true",
+                   help="with --self-check: each map's sigma is scaled on the check's own cells, so that 68 %% of their "
+                        "errors lie within 1 sigma (inference/selfcheck.py sigma_factor)")
+    p.add_argument("--check-membrane", action="store_true",
+                   help="with --self-check: the check also weighs the membrane (Laplace interpolation) beside the thin plate")
     _add_device(p)
     p.set_defaults(func=cmd_package_model)
 
@@ -267,5 +272,6 @@ def cmd_package_model(args) -> int:
     if not out.resolve().parent.is_dir():
         raise ValueError(f"--out {str(out)!r}: the folder does not exist")
     print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device, self_check=args.self_check,
-                                   check_reach=args.check_reach)))
+                                   check_reach=args.check_reach, check_sigma=args.check_sigma,
+                                   check_membrane=args.check_membrane)))
     return 0

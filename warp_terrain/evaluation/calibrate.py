@@ -21,6 +21,7 @@ from pathlib import Path
 
 from ..data.stream import make_pair, validation_seed
 from ..inference.reconstructor import Reconstructor
+from ..inference.selfcheck import CANDIDATE_TENSIONS, THIN_PLATE_ONLY
 from ..sim import SimConfig, as_sim_config
 
 #: First validation chunk used for calibration (training validates on chunks 0, 1, ...).
@@ -53,7 +54,7 @@ def fit_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str = "cpu", c
 
 
 def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False,
-                  check_reach: bool = False) -> dict:
+                  check_reach: bool = False, check_sigma: bool = False, check_membrane: bool = False) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
@@ -63,8 +64,13 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     (``meta["self_check"]``; only a fill-residual generator has the fills to fall back to).
     ``check_reach``: the check's weight holds near the scan only, the weight measured on the
     scan's outer cells far from it (``meta["check_reach"]``, ``inference/selfcheck.py``); needs ``self_check``.
+    ``check_sigma``: each map's sigma is scaled on the check's own cells (``meta["check_sigma"]``,
+    ``selfcheck.sigma_factor``); needs ``self_check`` and an uncertainty head.
+    ``check_membrane``: the check also weighs the membrane (``meta["check_tensions"] = (0, 1)``,
+    ``selfcheck.checked_maps``); needs ``self_check``.
 
-    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check", "check_reach"}`` (``sigma_scale`` None if not fitted).
+    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check", "check_reach", "check_sigma", "check_membrane"}``
+    (``sigma_scale`` None if not fitted).
     """
     if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
         raise ValueError(f"calibrate={calibrate!r}: must be an integer >= 0")
@@ -73,9 +79,15 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
         raise ValueError(f"out={str(out)!r}: the folder does not exist")
     if check_reach and not self_check:
         raise ValueError("check_reach: needs self_check (it sets how far the self-check's weight holds)")
+    if check_membrane and not self_check:
+        raise ValueError("check_membrane: needs self_check (the membrane is one of the self-check's fills)")
+    if check_sigma and not self_check:
+        raise ValueError("check_sigma: needs self_check (the sigma is scaled on the self-check's cells)")
     rec = Reconstructor.load(checkpoint, device=device, self_check=False)
     if self_check and not hasattr(rec.generator, "base_fill"):
         raise ValueError(f"{str(checkpoint)!r}: self_check needs a fill-residual model (model.residual=true)")
+    if check_sigma and not rec.has_uncertainty:
+        raise ValueError(f"{str(checkpoint)!r}: check_sigma needs a model with an uncertainty head (model.uncertainty=true)")
     if calibrate and rec.has_uncertainty:
         run = rec.meta.get("config") or {}
         if not all(key in run for key in ("terrain", "lidar", "data")):
@@ -84,6 +96,9 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
         rec.meta["sigma_scale"] = fit_sigma_scale(rec, sim, calibrate, device=rec.device)
     rec.meta["self_check"] = bool(self_check)
     rec.meta["check_reach"] = bool(check_reach)
+    rec.meta["check_sigma"] = bool(check_sigma)
+    rec.meta["check_tensions"] = list(CANDIDATE_TENSIONS if check_membrane else THIN_PLATE_ONLY)
     rec.save(out)
     return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale"),
-            "self_check": bool(self_check), "check_reach": bool(check_reach)}
+            "self_check": bool(self_check), "check_reach": bool(check_reach), "check_sigma": bool(check_sigma),
+            "check_membrane": bool(check_membrane)}

@@ -92,10 +92,11 @@ def reconstructor_predictor(rec: Reconstructor, chunk: int = 16, path=None) -> P
 
 
 def load_predictor(path=None, device=None, chunk: int = 16, tta: bool = True, self_check: bool | None = None,
-                   check_reach: bool | None = None) -> Predictor:
+                   check_reach: bool | None = None, check_sigma: bool | None = None) -> Predictor:
     """The predictor of a training checkpoint (``checkpoints/best.pt``), a ``Reconstructor`` file,
     or (``path=None``) the model shipped in the package; ``tta``: average the 8 orientations;
     ``self_check``: check each map on its own scan, ``check_reach``: the check's weight near the
-    scan only (``Reconstructor``; None: as the file says)."""
-    rec = Reconstructor.load(path, device=device, tta=tta, self_check=self_check, check_reach=check_reach)
+    scan only, ``check_sigma``: each map's sigma scaled on the check's cells (``Reconstructor``;
+    None: as the file says)."""
+    rec = Reconstructor.load(path, device=device, tta=tta, self_check=self_check, check_reach=check_reach, check_sigma=check_sigma)
     return reconstructor_predictor(rec, chunk, path)

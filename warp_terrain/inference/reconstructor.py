@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import best_fill, candidate_fills, correction_weight, far_share, hidden_cells, outer_cells, pick
+from .selfcheck import THIN_PLATE_ONLY, Regimes, candidate_fills, checked_maps, hidden_cells, outer_cells, sigma_factor
 
 PRETRAINED = "reconstructor.pt"
 
@@ -56,10 +56,12 @@ class Reconstructor:
 
     The uncertainty is multiplied by ``meta["sigma_scale"]`` (1 if absent): a factor fitted on
     validation pairs when the model is packaged (:func:`~warp_terrain.evaluation.calibrate.fit_sigma_scale`).
+    With ``check_sigma`` (and the self-check) each map's sigma is instead scaled on its own scan:
+    by the factor that puts 68 % of the check's hidden cells within 1 sigma (``selfcheck.sigma_factor``).
     """
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
-                 self_check: bool | None = None, check_reach: bool | None = None):
+                 self_check: bool | None = None, check_reach: bool | None = None, check_sigma: bool | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
         self.model_config = model_config
@@ -71,11 +73,16 @@ class Reconstructor:
         # the checked weight holds only near the scan; far from it the weight measured on the
         # scan's outer cells (``selfcheck.py``): as the model file says (``meta["check_reach"]``)
         self.check_reach = bool(self.meta.get("check_reach", False)) if check_reach is None else bool(check_reach)
+        # each map's sigma scaled on the check's hidden cells: as the model file says (``meta["check_sigma"]``)
+        self.check_sigma = bool(self.meta.get("check_sigma", False)) if check_sigma is None else bool(check_sigma)
+        # the plain fills the check weighs beside the base fill, by tension (thin plate 0, membrane 1):
+        # as the model file says (``meta["check_tensions"]``); files from before the membrane: the thin plate only
+        self.check_tensions = tuple(float(t) for t in self.meta.get("check_tensions", THIN_PLATE_ONLY))
 
     # -- files --------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None,
-             check_reach: bool | None = None) -> Reconstructor:
+             check_reach: bool | None = None, check_sigma: bool | None = None) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")
@@ -93,7 +100,7 @@ class Reconstructor:
             raise ValueError(f"model file {str(path)!r} holds neither a Reconstructor nor a training checkpoint")
         generator = build_generator(cfg)
         generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
-        return cls(generator, cfg, meta, device, tta, self_check, check_reach)
+        return cls(generator, cfg, meta, device, tta, self_check, check_reach, check_sigma)
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
@@ -124,11 +131,13 @@ class Reconstructor:
 
         With ``self_check`` each map keeps only the share of the net's correction that the
         map's own scan supports (``inference/selfcheck.py``): the model's map of the scan with a
-        fifth of its observed cells hidden is compared there with two classical fills (its base
-        fill and the plain thin plate), and the map is the better fill plus that share. With
+        fifth of its observed cells hidden is compared there with classical fills (its base
+        fill, the plain thin plate and the membrane), and the map is the best fill plus that share. With
         ``check_reach`` the same pass also hides the scan's outermost observed cells
         (``outer_cells``): the share measured on the random cells holds near the scan, and with
-        distance from it (``far_share``) gives way to the share measured on the outer cells."""
+        distance from it (``far_share``) gives way to the share measured on the outer cells.
+        With ``check_sigma`` the sigma of each map is scaled so that 68 % of the checked cells'
+        errors (the thinned scan's map, blended as the full one is) lie within 1 sigma."""
         scan, mask = scan.to(self.device), mask.to(self.device)
         if not self.self_check:
             return self._predict(scan, mask)[:2]
@@ -136,23 +145,18 @@ class Reconstructor:
         outer = outer_cells(mask) if self.check_reach else torch.zeros_like(hidden)
         hidden = hidden & ~outer
         thinned = mask * (~(hidden | outer)).to(mask.dtype)  # one pass answers both checks
-        thinned_scan = scan * thinned
-        # the scan and its thinned copy go through the net, and their thin plates through one solve, together
+        # the scan and its thinned copy go through the net, and their classical fills through one solve, together
         n = scan.shape[0]
-        both_scans, both_masks = torch.cat([scan, thinned_scan]), torch.cat([mask, thinned])
+        both_scans, both_masks = torch.cat([scan, scan * thinned]), torch.cat([mask, thinned])
         heights, sigmas, bases = self._predict(both_scans, both_masks)
-        height, checked = heights[:n], heights[n:]
+        fills = candidate_fills(bases, both_scans, both_masks, self.check_tensions)
+        regimes = Regimes(hidden, outer if self.check_reach else None)
+        membrane = len(self.check_tensions) > 1 and self.check_tensions[-1] == 1.0
+        height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, membrane)
         sigma = None if sigmas is None else sigmas[:n]
-        fills = candidate_fills(bases, both_scans, both_masks)
-        fills_thinned = fills[:, n:]
-        choice = best_fill(fills_thinned, scan, hidden)
-        chosen_thinned = pick(fills_thinned, choice)
-        weight = correction_weight(checked, chosen_thinned, scan, hidden)
-        fill = pick(fills[:, :n], choice)
-        if self.check_reach:
-            far = far_share(mask).to(weight.dtype)
-            weight = weight * (1.0 - far) + correction_weight(checked, chosen_thinned, scan, outer) * far
-        return fill + weight * (height - fill), sigma
+        if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see
+            sigma = sigma * sigma_factor(height_thinned, sigmas[n:], scan, hidden | outer)
+        return height, sigma
 
     def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """``(height, sigma, base)``: the generator's maps averaged over the orientations, and its

@@ -11,8 +11,10 @@ those cells is least has
 the least-squares weight of the correction, clamped to [0, 1]. The map's full-scan prediction
 then keeps ``w*`` of its correction: all of it where the model beats its fill on this scan, none
 where it does worse (the map is then the classical fill), in between where it helps a little.
-The fill itself is chosen the same way, per map, between the model's base fill and the plain
-thin plate (``candidate_fills``): whichever errs less on the hidden cells. A label-free check of
+The fill itself is chosen the same way, per map: the smooth fill (the model's base fill or the
+plain thin plate, whichever errs less on the hidden cells), moved towards the membrane (Laplace
+interpolation: rough ground, noisy scans) by the least-squares share the hidden cells support
+(``candidate_fills``, ``checked_maps``). A label-free check of
 every map, at the cost of a second pass on the thinned scan.
 
 What the check measures is how the model does next to measured cells: a hidden cell has kept
@@ -62,11 +64,27 @@ def correction_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.T
     return torch.where(den > 0, num / den.clamp_min(1e-30), torch.zeros_like(den)).clamp(0.0, 1.0)
 
 
-def candidate_fills(bases: torch.Tensor, scans: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
-    """(K, N, 1, S, S): for each of the ``N`` maps, the model's base fill (``bases``) and the
-    plain thin plate of its scan, every thin plate in one batched solve (the self-check passes
-    the scan and its thinned copy together: one call costs less than two on a CPU)."""
-    return torch.stack([bases, biharmonic_fill(scans, masks)])
+#: Tensions of the classical fills the check weighs beside the model's base fill: the thin plate
+#: (0: smooth ground, true-scale slopes) and the membrane (1, Laplace interpolation: rough ground
+#: and noisy scans, where the thin plate overshoots between neighbouring observations).
+CANDIDATE_TENSIONS = (0.0, 1.0)
+#: The candidates of a check without the membrane (files packaged before it).
+THIN_PLATE_ONLY = (0.0,)
+
+
+def candidate_fills(bases: torch.Tensor, scans: torch.Tensor, masks: torch.Tensor,
+                    tensions: tuple[float, ...] = CANDIDATE_TENSIONS) -> torch.Tensor:
+    """(1 + len(tensions), N, 1, S, S): for each of the ``N`` maps, the model's base fill
+    (``bases``), then the plain fill of its scan under each tension, every one of them in a
+    single batched solve (the self-check passes the scan and its thinned copy together: one
+    call costs less than several on a CPU)."""
+    n = scans.shape[0]
+    if not tensions:
+        return bases[None]
+    per_map = torch.tensor(tensions, dtype=scans.dtype, device=scans.device).repeat_interleave(n).view(-1, 1, 1, 1)
+    k = len(tensions)
+    fills = biharmonic_fill(scans.repeat(k, 1, 1, 1), masks.repeat(k, 1, 1, 1), tension=per_map if k > 1 else float(tensions[0]))
+    return torch.cat([bases[None], fills.view(k, n, *scans.shape[1:])])
 
 
 def best_fill(candidates: torch.Tensor, measured: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
@@ -79,6 +97,51 @@ def best_fill(candidates: torch.Tensor, measured: torch.Tensor, hidden: torch.Te
 def pick(candidates: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """(B, 1, S, S): candidate ``index[b]`` of each map ``b``."""
     return candidates[index, torch.arange(candidates.shape[1], device=candidates.device)]
+
+
+class Regimes:
+    """Where each weight the check measures holds: ``near`` on the random hidden cells, ``away``
+    on the outer cells (``None`` without the reach); a map's weight at a cell is
+    ``near (1 - far) + away far`` with ``far = far_share(mask)`` of the map the weight is used on."""
+
+    def __init__(self, hidden: torch.Tensor, outer: torch.Tensor | None):
+        self.hidden, self.outer = hidden, outer
+
+    def weight(self, candidate: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor):
+        """``(near, away)``: the least-squares weights of ``candidate - fill`` (``correction_weight``)."""
+        near = correction_weight(candidate, fill, measured, self.hidden)
+        return near, None if self.outer is None else correction_weight(candidate, fill, measured, self.outer)
+
+    @staticmethod
+    def apply(weights, fill: torch.Tensor, candidate: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        near, away = weights
+        if away is None:
+            return fill + near * (candidate - fill)
+        far = far_share(observed).to(near.dtype)
+        return fill + (near * (1.0 - far) + away * far) * (candidate - fill)
+
+
+def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,
+                 regimes: Regimes, membrane: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(map, thinned map)``, each (N, 1, S, S): the checked map of the full scan and, blended
+    the same way, the one of the thinned scan (what the check's cells are scored on).
+
+    ``fills`` (K, 2N, 1, S, S) and ``model`` (2N, 1, S, S) hold the full scans' maps, then the
+    thinned scans' (``candidate_fills`` of both; the net's maps of both). The classical fill is
+    the smooth candidate (the base fill or the thin plate: whichever errs least on the hidden
+    cells), and with ``membrane`` (``fills[-1]``) moved towards the membrane by the share the
+    check's cells support (``regimes``: near the scan and far from it); the model's correction
+    to that fill is then kept in the share the same cells support."""
+    n = scan.shape[0]
+    smooth = fills[:-1] if membrane else fills
+    choice = best_fill(smooth[:, n:], scan, regimes.hidden)
+    fill, fill_thinned = pick(smooth[:, :n], choice), pick(smooth[:, n:], choice)
+    if membrane:
+        beta = regimes.weight(fills[-1, n:], fill_thinned, scan)
+        fill = regimes.apply(beta, fill, fills[-1, :n], mask)
+        fill_thinned = regimes.apply(beta, fill_thinned, fills[-1, n:], thinned)
+    w = regimes.weight(model[n:], fill_thinned, scan)
+    return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
 
 
 def far_share(mask: torch.Tensor, near: int = REACH_NEAR, far: int = REACH_FAR) -> torch.Tensor:
@@ -111,3 +174,25 @@ def outer_cells(mask: torch.Tensor, share: float = OUTER_SHARE) -> torch.Tensor:
     # per map: the radius below which 1 - share of its observed cells lie (NaN, and no cell, if none)
     cut = torch.nanquantile(torch.where(observed, radius, torch.nan).flatten(1), 1.0 - share, dim=1)
     return observed & (radius > cut.view(-1, 1, 1, 1))
+
+
+#: Share of the check's hidden cells whose error the calibrated sigma covers (a Gaussian's 1 sigma).
+SIGMA_COVERAGE = 0.6827
+#: Fewest hidden cells a map needs for its own sigma factor; below it the factor is 1.
+SIGMA_MIN_CELLS = 16
+
+
+def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.Tensor, cells: torch.Tensor,
+                 coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS) -> torch.Tensor:
+    """(B, 1, 1, 1): per map, the factor ``k`` that puts ``coverage`` of the check's ``cells``
+    within ``k sigma``: the ``coverage`` quantile of ``|predicted - measured| / sigma`` there.
+    The check's cells are real measurements the map did not see, so ``k sigma`` means on this
+    scan what it says (about 68 % of errors within 1 sigma), whatever ground the model was
+    trained on; a quantile, not a mean of squares, so a few wild cells (a wall) do not inflate it.
+    Maps with fewer than ``min_cells`` cells keep ``k = 1``."""
+    ratio = ((predicted - measured).abs() / sigma.clamp_min(1e-6)).float()
+    ratio = torch.where(cells, ratio, torch.nan).flatten(1)
+    k = torch.nanquantile(ratio, coverage, dim=1)
+    enough = cells.flatten(1).sum(dim=1) >= min_cells
+    k = torch.where(enough & torch.isfinite(k), k, torch.ones_like(k))
+    return k.view(-1, 1, 1, 1).to(sigma.dtype)

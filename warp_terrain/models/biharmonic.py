@@ -11,7 +11,9 @@ its minimiser solves the biharmonic equation ``L^T L u = 0`` in the holes, like
 ``skimage.restoration.inpaint_biharmonic``, and with the Laplacian taken only where it is
 defined the map's border is a free edge, so a slope runs on past the last observation instead
 of flattening (a plane is reproduced exactly, at any hole shape). A little tension (GMT's
-``surface -T``) damps the overshoot of the thin plate next to steps.
+``surface -T``) damps the overshoot of the thin plate next to steps; ``tension = 1`` is the
+membrane (Laplace interpolation: each free cell the mean of its neighbours, as the
+``harmonic`` baseline), which never overshoots: the better fill of rough ground and noisy scans.
 
 The linear system ``A_FF u_F = -A_FK h_K`` (F: free cells, K: observed; ``A = (1-t) L^T L + t
 G^T G``, symmetric positive definite once one cell is observed) is solved matrix-free by
@@ -43,18 +45,21 @@ def _laplacian(u: torch.Tensor) -> torch.Tensor:
     return p[..., :-2, 1:-1] + p[..., 2:, 1:-1] + p[..., 1:-1, :-2] + p[..., 1:-1, 2:] - 4.0 * u
 
 
-def _operator(u: torch.Tensor, tension: float) -> torch.Tensor:
-    """``A u = (1 - t) L L u - t L u``: ``L`` is symmetric, so this is the gradient of E / 2."""
+def _operator(u: torch.Tensor, tension: float | torch.Tensor) -> torch.Tensor:
+    """``A u = (1 - t) L L u - t L u``: ``L`` is symmetric, so this is the gradient of E / 2.
+    ``t`` a number, or a (B, 1, 1, 1) tensor: each map its own tension."""
     lap = _laplacian(u)
+    if isinstance(tension, (int, float)) and tension == 1:
+        return -lap
     out = _laplacian(lap)
-    return out if tension == 0 else (1.0 - tension) * out - tension * lap
+    return out if isinstance(tension, (int, float)) and tension == 0 else (1.0 - tension) * out - tension * lap
 
 
 def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(dim=(1, 2, 3), keepdim=True)
 
 
-def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float) -> torch.Tensor:
+def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float | torch.Tensor) -> torch.Tensor:
     """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``.
 
     Where a map has converged (``r = 0``, so ``p = 0``) both step sizes are ``0 / tiny = 0``:
@@ -95,11 +100,18 @@ def pyramid_levels(size: int, coarsest: int = COARSEST) -> int:
     return levels
 
 
-def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float = 0.0, steps: tuple[int, ...] = DEFAULT_STEPS) -> torch.Tensor:
+def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float | torch.Tensor = 0.0,
+                    steps: tuple[int, ...] = DEFAULT_STEPS) -> torch.Tensor:
     """(B, 1, H, W) heights (m) and 0/1 mask -> heights with the unobserved cells filled by the
-    thin plate under ``tension`` (in [0, 1)); observed cells are returned exactly."""
-    if not 0.0 <= tension < 1.0:
-        raise ValueError(f"tension must be in [0, 1), got {tension}")
+    thin plate under ``tension`` (in [0, 1]: 0 the thin plate, 1 the membrane; a number, or a
+    (B, 1, 1, 1) tensor to solve maps of several tensions in one batch); observed cells are
+    returned exactly."""
+    if isinstance(tension, torch.Tensor):
+        if tension.shape != (height.shape[0], 1, 1, 1) or not bool(((tension >= 0) & (tension <= 1)).all()):
+            raise ValueError(f"tension must be in [0, 1], one per map (shape ({height.shape[0]}, 1, 1, 1)), got {tension.flatten().tolist()}")
+        tension = tension.to(height.dtype)
+    elif not 0.0 <= tension <= 1.0:
+        raise ValueError(f"tension must be in [0, 1], got {tension}")
     if not steps:
         raise ValueError("steps must name at least one CG step count per level")
     mask = mask.to(height.dtype)

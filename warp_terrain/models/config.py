@@ -33,6 +33,9 @@ class ModelConfig:
     ndf: int = 64  # discriminator filters in the first layer
     disc_layers: int = 3  # PatchGAN stride-2 layers (3 = the 70x70 PatchGAN)
     unet_depth: int = 7  # "unet" only: down-sampling steps (input padded to a multiple of 2**depth)
+    # "unet" only: full-resolution 3x3 conv layers after the U-Net (ngf filters, over its last
+    # features and its input), so a correction can change single cells; 0: pix2pix's U-Net
+    refine: int = 0
     norm: str = "batch"  # "batch" | "instance" | "none"
     dropout: float = 0.5  # dropout on the innermost decoder blocks, as pix2pix (0 disables)
     gan_mode: str = "vanilla"  # "vanilla" (the paper's BCE cGAN) | "lsgan" | "none" (L1 only)
@@ -80,6 +83,8 @@ class ModelConfig:
         require(self.in_channels in (1, 2), "in_channels", self.in_channels, "inputs are the scan (1) or the scan and its mask (2)")
         require(self.out_channels == 1, "out_channels", self.out_channels, "the generator predicts one height map (1)")
         require(_is_int(self.unet_depth) and self.unet_depth >= 2, "unet_depth", self.unet_depth, "expected an integer >= 2")
+        require(_is_int(self.refine) and self.refine >= 0, "refine", self.refine, "expected an integer >= 0 (full-resolution layers)")
+        require(self.refine == 0 or self.name == "unet", "refine", self.refine, "only the unet generator has a refine head")
         for key in ("lr_g", "lr_d"):
             require(_is_number(getattr(self, key)) and getattr(self, key) > 0, key, getattr(self, key), "expected a positive learning rate")
         require(_is_number(self.lambda_l1) and self.lambda_l1 >= 0, "lambda_l1", self.lambda_l1, "expected a number >= 0")

@@ -45,7 +45,7 @@ def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
     if cfg.name == "paper":
         net = PaperUNet(cfg.in_channels, channels, cfg.ngf, cfg.norm, cfg.dropout)
     else:
-        net = UNet(cfg.in_channels, channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout)
+        net = UNet(cfg.in_channels, channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout, cfg.refine)
     if not cfg.residual:
         return net
     if cfg.start_from_fill:

@@ -8,6 +8,9 @@ seed, so a randomised stream is as reproducible as a fixed one. With ``terrain.s
 relief is real ground: the amplitude, feature-size and octave draws do not apply to it; the
 sensor, obstacles and noise are drawn as on fBm terrain. With ``dem_probability`` > 0 an fBm
 world mixes in real ground: that share of batches cut their relief from ``terrain.dem``'s files.
+With ``plain_probability`` > 0 a world with landforms (``terrain=wide``: tilt, low-frequency
+relief, depressions, gullies, terraces) mixes in plain fBm: that share of batches has them off,
+so one stream holds the paper's gently rolling ground as well as steep real-looking windows.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.checks import check_finite, require
+from .landforms import LandformConfig
 from .lidar import LIDAR_PRESETS, lidar_preset
 from .terrain import OBSTACLE_KINDS, ObstacleConfig
 
@@ -44,6 +48,9 @@ class RandomizeConfig:
     # probability that a batch's relief is real ground: windows of ``terrain.dem`` (its files,
     # scale and window draws) instead of the fBm world, obstacles and sensor drawn as for fBm
     dem_probability: float = 0.0
+    # probability that a batch is plain fBm: the terrain's tilt, relief and landforms off for it
+    # (no effect on a terrain without them)
+    plain_probability: float = 0.0
 
     def validate(self) -> None:
         for key in ("amplitude", "feature_size", "mount_height"):
@@ -61,6 +68,7 @@ class RandomizeConfig:
         require(0.0 <= self.obstacle_probability <= 1.0, "randomize.obstacle_probability", self.obstacle_probability, "must be in [0, 1]")
         require(0.0 <= self.noise_max <= 1.0, "randomize.noise_max", self.noise_max, "must be in [0, 1]")
         require(0.0 <= self.dem_probability <= 1.0, "randomize.dem_probability", self.dem_probability, "must be in [0, 1]")
+        require(0.0 <= self.plain_probability <= 1.0, "randomize.plain_probability", self.plain_probability, "must be in [0, 1]")
         require(self.azimuth_step_min_deg >= 0.0, "randomize.azimuth_step_min_deg", self.azimuth_step_min_deg, "must be >= 0")
 
 
@@ -100,4 +108,8 @@ def randomize(sim, batch: int, seed: int):
     feature_sizes = log_uniform(rng, r.feature_size_min, r.feature_size_max, batch)
     if r.dem_probability > 0 and rng.uniform() < r.dem_probability:  # drawn last: other streams unchanged
         out.terrain.source = "dem"
+    if r.plain_probability > 0 and rng.uniform() < r.plain_probability:  # after the DEM draw: its stream unchanged
+        out.terrain.tilt.enabled = False
+        out.terrain.relief.enabled = False
+        out.terrain.landforms = LandformConfig()
     return out, amplitudes, feature_sizes

@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import THIN_PLATE_ONLY, Regimes, candidate_fills, checked_maps, hidden_cells, outer_cells, sigma_factor
+from .selfcheck import THIN_PLATE_ONLY, Regimes, candidate_fills, checked_maps, far_share, hidden_cells, outer_cells, sigma_factor
 
 PRETRAINED = "reconstructor.pt"
 
@@ -137,7 +137,8 @@ class Reconstructor:
         (``outer_cells``): the share measured on the random cells holds near the scan, and with
         distance from it (``far_share``) gives way to the share measured on the outer cells.
         With ``check_sigma`` the sigma of each map is scaled so that 68 % of the checked cells'
-        errors (the thinned scan's map, blended as the full one is) lie within 1 sigma."""
+        errors (the thinned scan's map, blended as the full one is) lie within 1 sigma: the
+        factor of the random cells near the scan, that of the outer cells far from it (with the reach)."""
         scan, mask = scan.to(self.device), mask.to(self.device)
         if not self.self_check:
             return self._predict(scan, mask)[:2]
@@ -154,8 +155,12 @@ class Reconstructor:
         membrane = len(self.check_tensions) > 1 and self.check_tensions[-1] == 1.0
         height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, membrane)
         sigma = None if sigmas is None else sigmas[:n]
-        if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see
-            sigma = sigma * sigma_factor(height_thinned, sigmas[n:], scan, hidden | outer)
+        if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see, per regime
+            near = sigma_factor(height_thinned, sigmas[n:], scan, hidden)
+            if self.check_reach:
+                far = far_share(mask).to(near.dtype)
+                near = near * (1.0 - far) + sigma_factor(height_thinned, sigmas[n:], scan, outer) * far
+            sigma = sigma * near
         return height, sigma
 
     def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:

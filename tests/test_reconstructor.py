@@ -256,7 +256,10 @@ def test_reconstruct_command_writes_map_and_preview(tmp_path, capsys):
     with np.load(out) as f:
         assert f["height"].shape == (121, 121) and f["mask"].sum() > 100
         expected = Reconstructor.load(device="cpu").reconstruct(points)
-        np.testing.assert_allclose(f["height"], expected, atol=1e-4)
+        # the shift there and back rounds the points' heights in float32 (~1e-7 m); the map's
+        # corners, 10+ cells from any observation, amplify it (measured 1.2e-4 m): 1 mm
+        np.testing.assert_allclose(f["height"], expected, rtol=0, atol=1e-3)
+        assert float(np.median(np.abs(f["height"] - expected))) < 1e-5
     assert out.with_suffix(".png").stat().st_size > 0
     assert main(["reconstruct", str(tmp_path / "missing.las")]) == 2
     assert "missing.las" in capsys.readouterr().err

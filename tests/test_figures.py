@@ -80,3 +80,27 @@ def test_export_usd_command_bad_suffix(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and ".ply" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_model_trained_on_dem_ground_is_used_where_its_rasters_are_not(tmp_path):
+    """The shipped model trained on a raster of real_data/; on a user's machine that file is
+    absent. Its predictor still carries its sensor and maps, and its figures (the obstacle
+    settings, which swap in a terrain without rasters) still draw."""
+    from warp_terrain.inference.predictor import reconstructor_predictor
+    from warp_terrain.inference.reconstructor import Reconstructor
+    from warp_terrain.models.config import ModelConfig
+    from warp_terrain.models.pix2pix import build_generator
+    from warp_terrain.plots.paper import _obstacle_sim
+    from warp_terrain.sim import SimConfig
+
+    sim = SimConfig()
+    sim.lidar.mount_height = 2.2
+    config = {key: asdict(getattr(sim, key)) for key in ("terrain", "lidar", "data")}
+    config["terrain"]["dem"]["files"] = [str(tmp_path / "gone.tif")]
+    config["data"]["randomize"].update(enabled=True, dem_probability=0.25)
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
+    rec = Reconstructor(build_generator(cfg), cfg, meta={"config": config}, device="cpu")
+    predictor = reconstructor_predictor(rec)
+    assert predictor.sim.lidar.mount_height == 2.2
+    obstacles = _obstacle_sim(predictor.sim, "flat_cylinders")
+    assert obstacles.terrain.cylinders.count_max > 0 and not obstacles.data.randomize.enabled

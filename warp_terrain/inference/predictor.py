@@ -62,10 +62,13 @@ def model_predictor(model, in_channels: int, chunk: int = 16, sim: SimConfig | N
 
 
 def _trained_sim(meta: dict) -> SimConfig | None:
+    """The run's simulator settings (its sensor, maps, world), or None. The DEM rasters a run
+    trained on are not loaded: a model is used where they are not (the shipped model trained on
+    ``real_data/``'s Finland raster, which a user's machine need not have)."""
     run = meta.get("config") or {}
     if not all(key in run for key in ("terrain", "lidar", "data")):
         return None
-    return as_sim_config({key: run[key] for key in ("terrain", "lidar", "data")})
+    return as_sim_config({key: run[key] for key in ("terrain", "lidar", "data")}, files=False)
 
 
 def reconstructor_predictor(rec: Reconstructor, chunk: int = 16, path=None) -> Predictor:

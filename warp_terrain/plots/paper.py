@@ -174,10 +174,12 @@ def prediction_figure(predictor, sim: SimConfig, samples: int = 3, seed: int = 0
 
 
 def _obstacle_sim(base: SimConfig, setting: str) -> SimConfig:
-    """``base`` (a model's lidar and maps) with the terrain setting ``setting``."""
+    """``base`` (a model's lidar and maps) with the terrain setting ``setting``, not randomised
+    (a randomised world that mixes in DEM windows would need the rasters the setting lacks)."""
 
     sim = copy.deepcopy(base)
     sim.terrain = load_terrain_setting(setting).terrain
+    sim.data.randomize.enabled = False
     sim.validate()
     return sim
 

@@ -16,7 +16,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import THIN_PLATE_ONLY, Regimes, candidate_fills, checked_maps, far_share, hidden_cells, outer_cells, sigma_factor
+from .selfcheck import THIN_PLATE_ONLY, Regimes, candidate_fills, checked_maps, hidden_cells, outer_cells, sigma_factor
 
 PRETRAINED = "reconstructor.pt"
 
@@ -152,16 +152,16 @@ class Reconstructor:
         heights, sigmas, bases = self._predict(both_scans, both_masks)
         fills = candidate_fills(bases, both_scans, both_masks, self.check_tensions)
         regimes = Regimes(hidden, outer if self.check_reach else None)
-        membrane = len(self.check_tensions) > 1 and self.check_tensions[-1] == 1.0
-        height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, membrane)
+        height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, self.check_membrane)
         sigma = None if sigmas is None else sigmas[:n]
         if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see, per regime
-            near = sigma_factor(height_thinned, sigmas[n:], scan, hidden)
-            if self.check_reach:
-                far = far_share(mask).to(near.dtype)
-                near = near * (1.0 - far) + sigma_factor(height_thinned, sigmas[n:], scan, outer) * far
-            sigma = sigma * near
+            sigma = sigma * regimes.at(regimes.measure(sigma_factor, height_thinned, sigmas[n:], scan), mask)
         return height, sigma
+
+    @property
+    def check_membrane(self) -> bool:
+        """Whether the check weighs the membrane (the last of ``check_tensions`` is 1, after the thin plate)."""
+        return len(self.check_tensions) > 1 and self.check_tensions[-1] == 1.0
 
     def _predict(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """``(height, sigma, base)``: the generator's maps averaged over the orientations, and its

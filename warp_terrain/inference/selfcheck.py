@@ -107,18 +107,26 @@ class Regimes:
     def __init__(self, hidden: torch.Tensor, outer: torch.Tensor | None):
         self.hidden, self.outer = hidden, outer
 
+    def measure(self, statistic, *args):
+        """``(near, away)``: ``statistic(*args, cells)`` on the hidden cells and on the outer ones."""
+        return statistic(*args, self.hidden), None if self.outer is None else statistic(*args, self.outer)
+
     def weight(self, candidate: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor):
         """``(near, away)``: the least-squares weights of ``candidate - fill`` (``correction_weight``)."""
-        near = correction_weight(candidate, fill, measured, self.hidden)
-        return near, None if self.outer is None else correction_weight(candidate, fill, measured, self.outer)
+        return self.measure(correction_weight, candidate, fill, measured)
 
     @staticmethod
-    def apply(weights, fill: torch.Tensor, candidate: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        near, away = weights
+    def at(values, observed: torch.Tensor) -> torch.Tensor:
+        """A ``(near, away)`` pair as it holds at each cell of a map observed at ``observed``."""
+        near, away = values
         if away is None:
-            return fill + near * (candidate - fill)
+            return near
         far = far_share(observed).to(near.dtype)
-        return fill + (near * (1.0 - far) + away * far) * (candidate - fill)
+        return near * (1.0 - far) + away * far
+
+    @classmethod
+    def apply(cls, weights, fill: torch.Tensor, candidate: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        return fill + cls.at(weights, observed) * (candidate - fill)
 
 
 def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,

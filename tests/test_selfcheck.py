@@ -123,10 +123,11 @@ def plane_scan(size: int = 48):
     return z * mask, mask, z
 
 
-def reconstructor(value: float, self_check: bool, check_reach: bool = False) -> Reconstructor:
+def reconstructor(value: float, self_check: bool, check_reach: bool = False, check_keep_far: bool = False) -> Reconstructor:
     cfg = ModelConfig(name="unet", in_channels=2, residual=True, base_fill="plane_biharmonic", height_reference="plane")
     generator = FillResidualGenerator(Offset(value), base="plane_biharmonic", reference="plane")
-    return Reconstructor(generator, cfg, device="cpu", tta=False, self_check=self_check, check_reach=check_reach)
+    return Reconstructor(generator, cfg, device="cpu", tta=False, self_check=self_check, check_reach=check_reach,
+                         check_keep_far=check_keep_far)
 
 
 def test_a_correction_the_scan_refutes_is_switched_off():
@@ -171,7 +172,8 @@ def test_package_model_records_the_self_check_and_refuses_it_without_a_fill(tmp_
 
 def test_the_shipped_model_checks_itself_near_and_far_from_the_scan():
     shipped = Reconstructor.load(device="cpu")
-    assert shipped.self_check and shipped.check_reach
+    assert shipped.self_check and shipped.check_reach and shipped.check_keep_far
+    assert not Reconstructor.load(device="cpu", check_keep_far=False).check_keep_far
     assert not Reconstructor.load(device="cpu", self_check=False).self_check
     assert not Reconstructor.load(device="cpu", check_reach=False).check_reach
 
@@ -280,6 +282,23 @@ def test_check_reach_keeps_a_correction_the_outer_cells_support_far_from_the_sca
     torch.testing.assert_close(reach[far], unchecked[far], rtol=0, atol=2e-3)
 
 
+def test_keep_far_keeps_the_correction_whole_far_from_the_scan_whatever_the_outer_cells_say():
+    """The refuted +1 m correction of the test above, with ``check_keep_far``: the near check
+    still switches it off next to the scan (w_near = 0), but far from it the correction is kept
+    whole (w_far = 1 although the outer cells refute it): the map is the plane plus
+    ``far_share`` metres, exactly the blend of the near and the kept far weight."""
+    scan, mask, truth = plane_scan()
+    mask[..., 16:] = 0.0
+    scan = scan * mask
+    kept = reconstructor(1.0, self_check=True, check_reach=True, check_keep_far=True).predict_maps(scan, mask)
+    share = far_share(mask)
+    torch.testing.assert_close(kept, truth + share, rtol=0, atol=2e-3)
+    assert bool((share[..., 16 + REACH_FAR - 1:] == 1).all()) and bool((share[mask > 0] == 0).all())
+    # without the reach there is no far weight to keep: the check alone, the plane everywhere
+    plain = reconstructor(1.0, self_check=True, check_keep_far=True).predict_maps(scan, mask)
+    assert float((plain - truth).abs().max()) < 0.01
+
+
 def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):
     from warp_terrain.evaluation.calibrate import package_model
 
@@ -295,6 +314,13 @@ def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):
     assert not Reconstructor.load(tmp_path / "residual.pt", device="cpu").check_reach  # off unless the file says so
     with pytest.raises(ValueError, match="check_reach: needs self_check"):
         package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, self_check=False, check_reach=True)
+    assert not (tmp_path / "x.pt").exists()
+    assert not loaded.check_keep_far  # off unless asked
+    out = package_model(tmp_path / "residual.pt", tmp_path / "far.pt", calibrate=0, self_check=True, check_reach=True,
+                        check_keep_far=True)
+    assert out["check_keep_far"] is True and Reconstructor.load(tmp_path / "far.pt", device="cpu").check_keep_far
+    with pytest.raises(ValueError, match="check_keep_far: needs check_reach"):
+        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, self_check=True, check_keep_far=True)
     assert not (tmp_path / "x.pt").exists()
 
 
@@ -389,3 +415,21 @@ def test_the_check_moves_the_fill_towards_the_membrane_by_the_share_the_scan_sup
     assert float((out - world)[unobserved].square().mean()) < 0.2 * float((thin_plate - world)[unobserved].square().mean())
     no_membrane = reconstructor(0.0, self_check=True)
     assert float((no_membrane.predict_maps(world * membrane_mask, membrane_mask) - world)[unobserved].abs().max()) > 0.01
+
+
+def test_package_model_cli_passes_every_check_flag(tmp_path, capsys):
+    """``warp-terrain package-model`` with each check flag writes a file that asks for it."""
+    import json
+
+    from warp_terrain.cli import main
+    from warp_terrain.models.pix2pix import build_generator
+
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
+    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    args = ["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "all.pt"), "--calibrate", "0", "--self-check",
+            "--check-reach", "--check-membrane", "--check-keep-far"]
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["check_reach"] and report["check_membrane"] and report["check_keep_far"] and not report["check_sigma"]
+    rec = Reconstructor.load(tmp_path / "all.pt", device="cpu")
+    assert rec.self_check and rec.check_reach and rec.check_keep_far and rec.check_membrane and not rec.check_sigma

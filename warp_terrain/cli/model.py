@@ -259,6 +259,9 @@ def add_package_model(sub) -> None:
                         "errors lie within 1 sigma (inference/selfcheck.py sigma_factor)")
     p.add_argument("--check-membrane", action="store_true",
                    help="with --self-check: the check also weighs the membrane (Laplace interpolation) beside the thin plate")
+    p.add_argument("--check-keep-far", action="store_true",
+                   help="with --check-reach: far from the scan the net's correction is kept whole, not weighed on the "
+                        "outer cells (they lie next to kept ones, where the net errs most)")
     _add_device(p)
     p.set_defaults(func=cmd_package_model)
 
@@ -273,5 +276,5 @@ def cmd_package_model(args) -> int:
         raise ValueError(f"--out {str(out)!r}: the folder does not exist")
     print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device, self_check=args.self_check,
                                    check_reach=args.check_reach, check_sigma=args.check_sigma,
-                                   check_membrane=args.check_membrane)))
+                                   check_membrane=args.check_membrane, check_keep_far=args.check_keep_far)))
     return 0

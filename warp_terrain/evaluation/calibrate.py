@@ -54,7 +54,8 @@ def fit_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str = "cpu", c
 
 
 def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False,
-                  check_reach: bool = False, check_sigma: bool = False, check_membrane: bool = False) -> dict:
+                  check_reach: bool = False, check_sigma: bool = False, check_membrane: bool = False,
+                  check_keep_far: bool = False) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
@@ -68,8 +69,11 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     ``selfcheck.sigma_factor``); needs ``self_check`` and an uncertainty head.
     ``check_membrane``: the check also weighs the membrane (``meta["check_tensions"] = (0, 1)``,
     ``selfcheck.checked_maps``); needs ``self_check``.
+    ``check_keep_far``: far from the scan the check keeps the net's correction whole instead of
+    weighing it on the outer cells (``meta["check_keep_far"]``); needs ``check_reach``.
 
-    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check", "check_reach", "check_sigma", "check_membrane"}``
+    Returns ``{"out", "bytes", "step", "sigma_scale", "self_check", "check_reach", "check_sigma", "check_membrane",
+    "check_keep_far"}``
     (``sigma_scale`` None if not fitted).
     """
     if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
@@ -79,6 +83,8 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
         raise ValueError(f"out={str(out)!r}: the folder does not exist")
     if check_reach and not self_check:
         raise ValueError("check_reach: needs self_check (it sets how far the self-check's weight holds)")
+    if check_keep_far and not check_reach:
+        raise ValueError("check_keep_far: needs check_reach (it sets the check's weight far from the scan)")
     if check_membrane and not self_check:
         raise ValueError("check_membrane: needs self_check (the membrane is one of the self-check's fills)")
     if check_sigma and not self_check:
@@ -97,8 +103,9 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     rec.meta["self_check"] = bool(self_check)
     rec.meta["check_reach"] = bool(check_reach)
     rec.meta["check_sigma"] = bool(check_sigma)
+    rec.meta["check_keep_far"] = bool(check_keep_far)
     rec.meta["check_tensions"] = list(CANDIDATE_TENSIONS if check_membrane else THIN_PLATE_ONLY)
     rec.save(out)
     return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale"),
             "self_check": bool(self_check), "check_reach": bool(check_reach), "check_sigma": bool(check_sigma),
-            "check_membrane": bool(check_membrane)}
+            "check_membrane": bool(check_membrane), "check_keep_far": bool(check_keep_far)}

@@ -61,7 +61,8 @@ class Reconstructor:
     """
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
-                 self_check: bool | None = None, check_reach: bool | None = None, check_sigma: bool | None = None):
+                 self_check: bool | None = None, check_reach: bool | None = None, check_sigma: bool | None = None,
+                 check_keep_far: bool | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
         self.model_config = model_config
@@ -73,6 +74,9 @@ class Reconstructor:
         # the checked weight holds only near the scan; far from it the weight measured on the
         # scan's outer cells (``selfcheck.py``): as the model file says (``meta["check_reach"]``)
         self.check_reach = bool(self.meta.get("check_reach", False)) if check_reach is None else bool(check_reach)
+        # with the reach: far from the scan the correction is kept whole, not weighed on the outer
+        # cells (which lie next to kept ones): as the model file says (``meta["check_keep_far"]``)
+        self.check_keep_far = bool(self.meta.get("check_keep_far", False)) if check_keep_far is None else bool(check_keep_far)
         # each map's sigma scaled on the check's hidden cells: as the model file says (``meta["check_sigma"]``)
         self.check_sigma = bool(self.meta.get("check_sigma", False)) if check_sigma is None else bool(check_sigma)
         # the plain fills the check weighs beside the base fill, by tension (thin plate 0, membrane 1):
@@ -82,7 +86,7 @@ class Reconstructor:
     # -- files --------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None,
-             check_reach: bool | None = None, check_sigma: bool | None = None) -> Reconstructor:
+             check_reach: bool | None = None, check_sigma: bool | None = None, check_keep_far: bool | None = None) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")
@@ -100,7 +104,7 @@ class Reconstructor:
             raise ValueError(f"model file {str(path)!r} holds neither a Reconstructor nor a training checkpoint")
         generator = build_generator(cfg)
         generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
-        return cls(generator, cfg, meta, device, tta, self_check, check_reach, check_sigma)
+        return cls(generator, cfg, meta, device, tta, self_check, check_reach, check_sigma, check_keep_far)
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
@@ -135,7 +139,8 @@ class Reconstructor:
         fill, the plain thin plate and the membrane), and the map is the best fill plus that share. With
         ``check_reach`` the same pass also hides the scan's outermost observed cells
         (``outer_cells``): the share measured on the random cells holds near the scan, and with
-        distance from it (``far_share``) gives way to the share measured on the outer cells.
+        distance from it (``far_share``) gives way to the share measured on the outer cells, or
+        with ``check_keep_far`` to the whole correction.
         With ``check_sigma`` the sigma of each map is scaled so that 68 % of the checked cells'
         errors (the thinned scan's map, blended as the full one is) lie within 1 sigma: the
         factor of the random cells near the scan, that of the outer cells far from it (with the reach)."""
@@ -152,7 +157,8 @@ class Reconstructor:
         heights, sigmas, bases = self._predict(both_scans, both_masks)
         fills = candidate_fills(bases, both_scans, both_masks, self.check_tensions)
         regimes = Regimes(hidden, outer if self.check_reach else None)
-        height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, self.check_membrane)
+        height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, self.check_membrane,
+                                              self.check_keep_far)
         sigma = None if sigmas is None else sigmas[:n]
         if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see, per regime
             sigma = sigma * regimes.at(regimes.measure(sigma_factor, height_thinned, sigmas[n:], scan), mask)

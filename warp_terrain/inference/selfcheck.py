@@ -28,6 +28,14 @@ keeps ``w = w* (1 - far) + w_far far`` of its correction, ``far = far_share(mask
 0 at ``REACH_NEAR`` cells from the nearest observed cell to 1 at ``REACH_FAR``: the near check
 next to the scan, the far check away from it. Both groups are hidden in the same pass, so the
 reach costs no extra pass of the model.
+
+The outer cells cannot see far either: hidden, each still lies a cell or two from a kept one,
+where the net errs most, so ``w_far`` measures the net next to the scan again and refutes
+corrections that help in long shadows (README, "Transfer to real ground": on 6 m relief the
+shipped net alone scores 0.85 of the best fill, checked with ``w_far`` 1.12). With
+``keep_far`` the correction is kept whole far from the scan (``w_far = 1``): the check then
+governs where it can measure, next to the scan, and the trained net where nothing can be
+measured; the outer cells still weigh the membrane and scale the sigma.
 """
 
 from __future__ import annotations
@@ -130,7 +138,7 @@ class Regimes:
 
 
 def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,
-                 regimes: Regimes, membrane: bool) -> tuple[torch.Tensor, torch.Tensor]:
+                 regimes: Regimes, membrane: bool, keep_far: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """``(map, thinned map)``, each (N, 1, S, S): the checked map of the full scan and, blended
     the same way, the one of the thinned scan (what the check's cells are scored on).
 
@@ -139,7 +147,8 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
     the smooth candidate (the base fill or the thin plate: whichever errs least on the hidden
     cells), and with ``membrane`` (``fills[-1]``) moved towards the membrane by the share the
     check's cells support (``regimes``: near the scan and far from it); the model's correction
-    to that fill is then kept in the share the same cells support."""
+    to that fill is then kept in the share the same cells support; with ``keep_far`` (and the
+    reach) in full far from the scan, whatever the outer cells say."""
     n = scan.shape[0]
     smooth = fills[:-1] if membrane else fills
     choice = best_fill(smooth[:, n:], scan, regimes.hidden)
@@ -149,6 +158,8 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
         fill = regimes.apply(beta, fill, fills[-1, :n], mask)
         fill_thinned = regimes.apply(beta, fill_thinned, fills[-1, n:], thinned)
     w = regimes.weight(model[n:], fill_thinned, scan)
+    if keep_far and w[1] is not None:
+        w = (w[0], torch.ones_like(w[1]))
     return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
 
 

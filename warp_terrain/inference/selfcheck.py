@@ -138,7 +138,7 @@ class Regimes:
 
 
 def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,
-                 regimes: Regimes, membrane: bool, keep_far: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+                 regimes: Regimes, membrane: bool, keep_far: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """``(map, thinned map)``, each (N, 1, S, S): the checked map of the full scan and, blended
     the same way, the one of the thinned scan (what the check's cells are scored on).
 

@@ -280,6 +280,9 @@ def test_check_reach_keeps_a_correction_the_outer_cells_support_far_from_the_sca
     far = share == 1
     assert bool(far[..., 16 + REACH_FAR - 1:].all())
     torch.testing.assert_close(reach[far], unchecked[far], rtol=0, atol=2e-3)
+    # with keep_far the far weight is 1 whatever it measured, and the near one still the near check's (0)
+    kept = reconstructor(0.3, self_check=True, check_reach=True, check_keep_far=True).predict_maps(scan, mask)
+    torch.testing.assert_close(kept, unchecked - 0.3 * (1.0 - share), rtol=0, atol=2e-3)
 
 
 def test_keep_far_keeps_the_correction_whole_far_from_the_scan_whatever_the_outer_cells_say():

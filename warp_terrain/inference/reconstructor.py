@@ -68,17 +68,19 @@ class Reconstructor:
         self.model_config = model_config
         self.meta = dict(meta or {})
         self.tta = bool(tta)
-        # None: as the model file says (``meta["self_check"]``, set when it was packaged)
-        wanted = bool(self.meta.get("self_check", False)) if self_check is None else bool(self_check)
-        self.self_check = wanted and hasattr(self.generator, "base_fill")
+        # each check setting: None means as the model file says (``meta[key]``, set when it was packaged)
+        def setting(key: str, value: bool | None) -> bool:
+            return bool(self.meta.get(key, False)) if value is None else bool(value)
+
+        self.self_check = setting("self_check", self_check) and hasattr(self.generator, "base_fill")
         # the checked weight holds only near the scan; far from it the weight measured on the
-        # scan's outer cells (``selfcheck.py``): as the model file says (``meta["check_reach"]``)
-        self.check_reach = bool(self.meta.get("check_reach", False)) if check_reach is None else bool(check_reach)
+        # scan's outer cells (``selfcheck.py``)
+        self.check_reach = setting("check_reach", check_reach)
         # with the reach: far from the scan the correction is kept whole, not weighed on the outer
-        # cells (which lie next to kept ones): as the model file says (``meta["check_keep_far"]``)
-        self.check_keep_far = bool(self.meta.get("check_keep_far", False)) if check_keep_far is None else bool(check_keep_far)
-        # each map's sigma scaled on the check's hidden cells: as the model file says (``meta["check_sigma"]``)
-        self.check_sigma = bool(self.meta.get("check_sigma", False)) if check_sigma is None else bool(check_sigma)
+        # cells (which lie next to kept ones)
+        self.check_keep_far = setting("check_keep_far", check_keep_far)
+        # each map's sigma scaled on the check's hidden cells
+        self.check_sigma = setting("check_sigma", check_sigma)
         # the plain fills the check weighs beside the base fill, by tension (thin plate 0, membrane 1):
         # as the model file says (``meta["check_tensions"]``); files from before the membrane: the thin plate only
         self.check_tensions = tuple(float(t) for t in self.meta.get("check_tensions", THIN_PLATE_ONLY))

@@ -515,3 +515,29 @@ def test_the_membrane_moves_the_smooth_fill_but_is_not_one_of_the_smooth_candida
     # the rest is the (small) share of the net's map, here the push-pull base, the check also keeps
     residual = (out - thin_plate - beta * step).pow(2).mean().sqrt()
     assert float(residual) < 0.2 * float(step.pow(2).mean().sqrt())
+
+
+def test_the_thinned_map_is_moved_towards_the_membrane_and_weighs_the_correction():
+    """``checked_maps`` by hand: the thin plate (0) beats the base fill (5) on the hidden cells,
+    where the scan measured 0.5 and the membrane says 1, so the membrane's share is exactly 1/2
+    and the thinned map's fill is 0.5 there, right: the net's correction (+1 on the thinned map)
+    then has weight 0, and both maps are the fills moved half-way to the membrane. A thinned map
+    moved towards any other fill (the thin plate) would leave an error the correction's weight
+    (1/3) would then take up."""
+    from warp_terrain.inference.selfcheck import Regimes, checked_maps
+
+    size = 8
+    mask = torch.ones(1, 1, size, size)
+    hidden = torch.zeros(1, 1, size, size, dtype=torch.bool)
+    hidden[..., 1::3, 2::3] = True
+    thinned = mask * (~hidden).to(mask.dtype)
+    scan = torch.full((1, 1, size, size), 0.5)
+    ramp = torch.linspace(0.0, 0.3, size).view(1, 1, 1, size).expand(1, 1, size, size)
+    base, thin_plate, membrane = 5.0 + ramp, ramp * 0.0, torch.ones(1, 1, size, size)
+    # each candidate of the full scan, then of the thinned one (as candidate_fills stacks them)
+    fills = torch.stack([torch.cat([f + 0.1, f]) for f in (base, thin_plate, membrane)])
+    fills[1, :1] = -0.2  # the full scan's thin plate differs from the thinned one's
+    model = torch.cat([torch.full_like(scan, 2.0), torch.full_like(scan, 1.5)])
+    full, thinned_map = checked_maps(fills, model, scan, mask, thinned, Regimes(hidden, None), membrane=True, keep_far=False)
+    torch.testing.assert_close(thinned_map, torch.full_like(scan, 0.5), rtol=0, atol=1e-6)
+    torch.testing.assert_close(full, 0.5 * (fills[1, :1] + fills[2, :1]), rtol=0, atol=1e-6)

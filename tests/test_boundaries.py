@@ -151,6 +151,23 @@ def test_fill_relative_weights_are_the_inverse_base_error_normalised():
     torch.testing.assert_close(w, inverse / inverse.mean(), rtol=1e-5, atol=0)
 
 
+
+def test_fill_relative_weights_for_a_squared_loss_are_the_inverse_mean_squared_errors():
+    """``power=2``: 1 / the base fill's mean squared error on the unobserved cells, normalised
+    (and the floor squared): a map whose cells err by 0.1 and 0.3 m weighs 1 / 0.05, not 1 / 0.2."""
+    mask = torch.ones(3, 1, 4, 4)
+    mask[:, 0, 0, :2] = 0.0  # two unobserved cells per map
+    target = torch.zeros(3, 1, 4, 4)
+    base = target.clone()
+    base[0, 0, 0, 0], base[0, 0, 0, 1] = 0.1, -0.3  # squared errors 0.01 and 0.09: mean 0.05
+    base[1, 0, 0, 0] = 0.2  # 0.04 and 0: mean 0.02
+    base[2, 0, 0, 0] = 0.001  # below the floor: 1 / 0.01 ** 2
+    base[2, 0, 3, 3] = 5.0  # an observed cell: never counted
+    w = fill_relative_weight(base, target, mask, floor=0.01, power=2).flatten()
+    inverse = torch.tensor([20.0, 50.0, 1e4])
+    torch.testing.assert_close(w, inverse / inverse.mean(), rtol=1e-5, atol=0)
+
+
 # ------------------------------------------------------------------------------ output paths
 def test_file_names_lose_only_leading_dots_and_unsafe_runs():
     assert file_name("XX.yaml") == "XX.yaml"

@@ -147,6 +147,7 @@ INVALID = {
     "model.dropout": 1.0,
     "model.gan_mode": "wgan",
     "model.lambda_l1": -1.0,
+    "model.height_loss": "l3",
     "model.lr_g": 0.0,
     "model.lr_d": -1e-4,
     "model.beta1": 1.0,
@@ -178,6 +179,7 @@ INVALID = {
     "train.progress": "sometimes",
     "train.dataset": "/no/such/dataset",
     "train.capture": "sometimes",
+    "train.init_from": "/no/such/model.pt",
 }
 # Free text, recorded with a preset and never interpreted: nothing can be wrong with it.
 UNCHECKED = {"lidar.source"}

@@ -211,6 +211,26 @@ def test_pix2pix_weighted_l1():
         model.set_input(torch.cat([condition, condition], 1), target)
 
 
+def test_the_squared_height_loss_is_the_weighted_mean_squared_error_of_the_step():
+    """``height_loss="l2"``: the height term is mean(weight * error^2), by hand on errors of 0, 1
+    and 3 m; and the loss a step reports is that of the generator before the step, weighted."""
+    model = build_model(ModelConfig(name="unet", ngf=4, ndf=4, unet_depth=3, gan_mode="none", height_loss="l2"))
+    prediction, target = torch.zeros(1, 1, 2, 2), torch.tensor([[[[0.0, 1.0], [3.0, -3.0]]]])
+    weight = torch.tensor([[[[1.0, 2.0], [0.5, 0.0]]]])
+    assert model.l1_loss(prediction, target, power=2).item() == pytest.approx((0 + 1 + 9 + 9) / 4)
+    assert model.l1_loss(prediction, target, weight, power=2).item() == pytest.approx((0 + 2 + 4.5 + 0) / 4)
+    condition, target = _batch(b=2, size=32)
+    weight = torch.rand(2, 1, 32, 32, generator=torch.Generator().manual_seed(0))
+    generator = copy.deepcopy(model.netG)
+    model.set_input(condition, target, weight)
+    values = model.optimize_parameters()
+    with torch.no_grad():
+        expected = (weight * (generator(condition) - target).square()).mean()
+    torch.testing.assert_close(values["l1"], expected, rtol=1e-5, atol=0)
+    with pytest.raises(ValueError, match="height_loss"):
+        ModelConfig(height_loss="huber").validate()
+
+
 def test_pix2pix_state_dict_round_trip(tmp_path):
     cfg = ModelConfig(name="paper", ngf=4, ndf=4)
     condition, target = _batch(b=2)

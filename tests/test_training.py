@@ -181,6 +181,39 @@ def test_same_seed_and_config_train_bit_identically_on_cpu(tmp_path, monkeypatch
     assert not all(torch.equal(t, weights["c"][k]) for k, t in weights["a"].items())
 
 
+def test_init_from_starts_the_generator_from_a_model_file_and_refuses_another_net(tmp_path):
+    """``train.init_from``: the run's generator starts with the file's weights exactly (fp16
+    weights read back as float), the optimisers afresh; a file whose net differs is refused
+    naming each differing field, before the run folder exists; a resumed run keeps its own."""
+    from warp_terrain.models import build_generator
+    from warp_terrain.training.session import setup
+
+    cfg = run_config(*TINY, "model.dropout=0.0")
+    source = Reconstructor(build_generator(cfg.model), cfg.model, device="cpu")
+    for p in source.generator.parameters():  # weights a fresh run would never draw
+        p.data.uniform_(-0.5, 0.5)
+    source.save(tmp_path / "source.pt")
+    expected = Reconstructor.load(tmp_path / "source.pt", device="cpu").generator.state_dict()
+    run = setup(run_config(*TINY, "model.dropout=0.0", f"train.init_from={tmp_path / 'source.pt'}"), tmp_path / "run")
+    got = run.model.generator.state_dict()
+    assert set(got) == set(expected) and all(torch.equal(got[k], expected[k]) for k in expected)
+    assert not run.model.optimizer_G.state  # no moments carried over
+    run.writer.close()
+
+    with pytest.raises(ValueError, match=r"train.init_from=.*model.ngf=8 \(the run: 16\).*model.dropout=0.0 \(the run: 0.5\)"):
+        setup(run_config(*TINY, "model.ngf=16", f"train.init_from={tmp_path / 'source.pt'}"), tmp_path / "other")
+    assert not (tmp_path / "other").exists()
+    with pytest.raises(ValueError, match="train.init_from"):
+        run_config(*TINY, f"train.init_from={tmp_path / 'missing.pt'}")
+
+    steps = ["train.steps=1", "train.val_every=1", "train.checkpoint_every=1", "train.image_every=1", "model.dropout=0.0"]
+    first = train(run_config(*TINY, *steps), tmp_path / "resumed")
+    resumed = setup(run_config(*TINY, *steps, "train.resume=true", f"train.init_from={tmp_path / 'source.pt'}"), tmp_path / "resumed")
+    weights = load_checkpoint(first["checkpoint"])["model"]["netG"]
+    assert all(torch.equal(resumed.model.generator.state_dict()[k], v) for k, v in weights.items())
+    resumed.writer.close()
+
+
 def test_resume_from_a_missing_checkpoint_fails_clearly(tmp_path):
     with pytest.raises(ValueError, match="no checkpoint"):
         train(run_config(*TINY, "train.steps=2", "train.resume=true"), tmp_path / "empty")

@@ -16,6 +16,16 @@ from .fill import BASE_FILLS, HEIGHT_REFERENCES
 GENERATORS = ("paper", "unet")
 NORMS = ("batch", "instance", "none")
 GAN_MODES = ("vanilla", "lsgan", "none")
+#: the height term of the generator loss: "l1" (pix2pix's mean absolute error) or "l2" (mean
+#: squared error: its minimiser is the conditional mean, what RMSE scores)
+HEIGHT_LOSSES = ("l1", "l2")
+
+
+#: the fields that make a generator what it is (its layers, inputs and outputs); a run that starts
+#: from another run's weights (``train.init_from``) must agree on every one. The rest (losses,
+#: learning rates, the discriminator) may change.
+GENERATOR_FIELDS = ("name", "in_channels", "out_channels", "ngf", "unet_depth", "refine", "norm", "dropout", "residual",
+                    "height_scale_min", "base_fill", "height_reference", "observed_bound", "uncertainty")
 
 
 @dataclass
@@ -39,7 +49,11 @@ class ModelConfig:
     norm: str = "batch"  # "batch" | "instance" | "none"
     dropout: float = 0.5  # dropout on the innermost decoder blocks, as pix2pix (0 disables)
     gan_mode: str = "vanilla"  # "vanilla" (the paper's BCE cGAN) | "lsgan" | "none" (L1 only)
-    lambda_l1: float = 100.0  # weight of the L1 term in the generator loss
+    lambda_l1: float = 100.0  # weight of the height term (L1, or L2 with height_loss="l2") in the generator loss
+    # the height term: "l1" (pix2pix's, the paper's: the per-cell median) | "l2" (squared error, per
+    # cell the conditional mean: RMSE's optimum, so the few cells far from the scan, where errors
+    # are metres, count as much as they weigh in the RMSE)
+    height_loss: str = "l1"
     lr_g: float = 2e-4
     lr_d: float = 2e-4
     beta1: float = 0.5
@@ -64,8 +78,8 @@ class ModelConfig:
     # 0 leaves observed cells free
     observed_bound: float = 0.0
     # residual only: weight each map's loss by 1 / the base fill's mean error on its unobserved
-    # cells (at least 1 cm), so the net learns to improve on the fill on every map, not only
-    # on the maps where the fill errs by metres
+    # cells (at least 1 cm; with height_loss="l2" by 1 / its mean squared error), so the net
+    # learns to improve on the fill on every map, not only on the maps where the fill errs by metres
     fill_relative_loss: bool = False
     # residual only: the net's last layer starts at zero, so the untrained model is the base fill
     # exactly and training only adds what improves on it
@@ -76,7 +90,7 @@ class ModelConfig:
 
     def validate(self) -> ModelConfig:
         """Raise ValueError naming the first bad field; return self so calls can chain."""
-        for key, allowed in (("name", GENERATORS), ("norm", NORMS), ("gan_mode", GAN_MODES)):
+        for key, allowed in (("name", GENERATORS), ("norm", NORMS), ("gan_mode", GAN_MODES), ("height_loss", HEIGHT_LOSSES)):
             require(getattr(self, key) in allowed, key, getattr(self, key), f"expected one of {', '.join(allowed)}")
         for key in ("in_channels", "out_channels", "ngf", "ndf", "disc_layers"):
             require(_is_int(getattr(self, key)) and getattr(self, key) > 0, key, getattr(self, key), "expected a positive integer")

@@ -13,7 +13,8 @@ weights and the learning-rate schedule:
 
 Step (pix2pix): D on (condition, prediction.detach()) as fake and (condition, target) as real,
 loss_D = (fake + real) / 2; then G with D frozen: loss_G = GAN(D(condition, prediction), real)
-+ lambda_l1 * L1(prediction, target). The L1 term may be weighted per pixel (`weight` in
++ lambda_l1 * L1(prediction, target), or with `height_loss="l2"` the squared error in place of
+L1 (the loss's name stays "l1": the height term). The term may be weighted per pixel (`weight` in
 `set_input`), e.g. to weight unobserved cells; without a weight it is the plain mean.
 With `uncertainty` the generator's second channel is a log-variance, trained by the Gaussian
 NLL of the detached height error (`models.uncertainty`), added to loss_G with the same weights.
@@ -114,10 +115,13 @@ class Pix2PixModel:
     # -- losses -------------------------------------------------------------------------
     @staticmethod
     def l1_loss(
-        prediction: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+        prediction: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None, power: int = 1
     ) -> torch.Tensor:
-        """mean(weight * |prediction - target|); weight None -> the plain mean absolute error."""
+        """mean(weight * |prediction - target| ** power); weight None -> the plain mean absolute
+        (``power=1``) or squared (``power=2``) error."""
         error = (prediction - target).abs()
+        if power == 2:
+            error = error.square()
         if weight is not None:
             error = error * weight
         return error.mean()
@@ -137,7 +141,7 @@ class Pix2PixModel:
             loss_gan = self.criterion_gan(self.netD(fake), True)
         else:
             loss_gan = torch.zeros((), device=self.prediction.device)
-        loss_l1 = self.l1_loss(self.prediction, self.target, self.weight)
+        loss_l1 = self.l1_loss(self.prediction, self.target, self.weight, height_loss_power(self.cfg.height_loss))
         self.loss_G = loss_gan + self.cfg.lambda_l1 * loss_l1
         loss_nll = None
         if self.log_variance is not None:
@@ -148,8 +152,8 @@ class Pix2PixModel:
 
     def optimize_parameters(self) -> dict[str, torch.Tensor]:
         """One pix2pix step (D then G). Returns detached 0-d tensors (no host sync):
-        "discriminator" = loss_D, "generator_gan" = G's adversarial term, "l1" = the L1 term
-        before the lambda_l1 factor (metres for height targets), and with uncertainty "nll" =
+        "discriminator" = loss_D, "generator_gan" = G's adversarial term, "l1" = the height term
+        before the lambda_l1 factor (metres for height targets, m^2 with ``height_loss="l2"``), and with uncertainty "nll" =
         the log-variance's Gaussian NLL. `loss_values()` -> floats."""
         self.forward()
         _set_requires_grad(self.netD, True)
@@ -291,6 +295,11 @@ class Pix2PixModel:
         model = cls(ModelConfig.coerce(state["config"]))
         model.load_state_dict(state)
         return model.to(device)
+
+
+def height_loss_power(height_loss: str) -> int:
+    """The exponent of ``model.height_loss``: 1 for ``"l1"``, 2 for ``"l2"``."""
+    return 2 if height_loss == "l2" else 1
 
 
 def build_model(cfg: ModelConfig | Mapping) -> Pix2PixModel:

@@ -20,6 +20,7 @@ from ..sim.terrain import TerrainConfig
 
 RESUME_OFF = ("false", "no", "0", "none", "")  # train.resume values that start afresh
 RESUME_LATEST = ("true", "yes", "1")  # ... that continue the run folder's latest checkpoint
+INIT_PRETRAINED = "pretrained"  # train.init_from value that starts from the model shipped in the package
 
 
 @dataclass
@@ -36,6 +37,11 @@ class TrainConfig:
     ``lr_decay_from``: fraction of ``steps`` after which both learning rates decay linearly to
     zero (pix2pix's schedule; 1.0 keeps them constant, as the paper states). The defaults are a
     useful run on a 2-core CPU in about five minutes (``train=default``).
+    ``init_from``: empty starts from fresh weights; else the generator's weights are taken from a
+    model file (``Reconstructor.save``, ``package-model``), a training checkpoint, or
+    ``pretrained`` (the model shipped in the package): fine-tuning. Its net must be the run's
+    (``models.config.GENERATOR_FIELDS``; a difference is refused before any work); the
+    optimisers start afresh. A resumed run takes its weights from its checkpoint instead.
     ``dataset``: empty trains on the live stream; else a folder written by
     ``warp-terrain generate``, cycled over (``data.stream.training_batches``).
     ``capture``: the live stream replays one recorded batch per step (``sim/graph.py``
@@ -60,6 +66,7 @@ class TrainConfig:
     progress: bool = True
     dataset: str = ""
     capture: bool = False
+    init_from: str = ""
 
     def validate(self) -> None:
         for key in ("steps", "batch_size", "val_every", "val_size", "log_every", "image_every", "checkpoint_every", "prefetch"):
@@ -73,6 +80,10 @@ class TrainConfig:
         require(isinstance(self.dataset, str), "dataset", self.dataset, "must be a folder path or empty (the live stream)")
         if self.dataset:
             require(Path(self.dataset).expanduser().is_dir(), "dataset", self.dataset, "no such folder (write one with `warp-terrain generate`)")
+        require(isinstance(self.init_from, str), "init_from", self.init_from, "must be a model file, a checkpoint, pretrained, or empty")
+        if self.init_from and self.init_from != INIT_PRETRAINED:
+            require(Path(self.init_from).expanduser().is_file(), "init_from", self.init_from,
+                    "no such file (a model file, a training checkpoint, or pretrained for the shipped model)")
         resume = str(self.resume).strip()
         if resume.lower() not in RESUME_OFF + RESUME_LATEST:
             require(Path(resume).expanduser().exists(), "resume", self.resume, "must be false, true, or an existing run folder or checkpoint file")

@@ -35,16 +35,19 @@ from ..data.seeds import batch_seed
 from ..data.stream import validation_set
 from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import calibration, masked_rmse
+from ..inference.reconstructor import Reconstructor
 from ..models import Pix2PixModel, build_model
+from ..models.config import GENERATOR_FIELDS
 from ..models.fill import fill_relative_weight, loss_weight_map
 from ..models.inputs import model_input
+from ..models.pix2pix import height_loss_power
 from ..models.uncertainty import standard_deviation
 from ..sim.batch import SimConfig, terrain_size
 from ..sim.device import resolve_device
 from ..sim.memory import check_batch_fits
 from ..sim.terrain import scratch_bytes
 from .checkpoint import BEST, LATEST, remove_stale_temporaries, resolve_resume, rng_state, set_rng_state
-from .config import RunConfig
+from .config import INIT_PRETRAINED, RunConfig
 from .distributed import NullWriter, Ranks, close_ranks, init_ranks
 from .files import save_figure_png, write_text
 from .scalars import DeferredScalars
@@ -140,6 +143,7 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
     except ValueError as err:
         raise ValueError(f"train.batch_size={tc.batch_size}: {str(err).split(': ', 1)[-1]}") from None
     resolve_resume(tc.resume, run_dir)  # a resume with nothing to resume fails here, before any folder is made
+    initial = initial_weights(cfg)  # so does a train.init_from whose net is not the run's
     for d in (run_dir / "checkpoints", run_dir / "images"):
         d.mkdir(parents=True, exist_ok=True)
     _seed(cfg, device)
@@ -149,6 +153,8 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
                  torch.get_num_threads())
 
     model = build_model(cfg.model).to(device)
+    if initial is not None:  # a resumed run's checkpoint replaces these weights next
+        model.generator.load_state_dict(initial)
     if ranks.distributed:
         model.distribute([ranks.local_rank] if device.startswith("cuda") else None)
     start, best = _resume(model, cfg, run_dir, ranks)
@@ -157,7 +163,7 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
             logger.info("resumed from %s at step %d of %d (best validation RMSE so far %.6f m)",
                      resolve_resume(tc.resume, run_dir), start, tc.steps, best)
         else:
-            logger.info("training from step 0 of %d (fresh weights)", tc.steps)
+            logger.info("training from step 0 of %d (%s)", tc.steps, f"weights from {tc.init_from}" if initial is not None else "fresh weights")
         write_text(run_dir / "run_config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
 
     val = validation_set(sim, tc.val_size if ranks.main else 1, device)
@@ -216,6 +222,25 @@ def _seed(cfg: RunConfig, device: str) -> None:
     np.random.seed(tc.seed)
 
 
+def initial_weights(cfg: RunConfig) -> dict[str, torch.Tensor] | None:
+    """The generator weights ``train.init_from`` names (None if it is empty), read with
+    ``weights_only=True``; a ``ValueError`` naming the key and every generator field
+    (``GENERATOR_FIELDS``) in which the file's net differs from the run's."""
+    source = cfg.train.init_from
+    if not source:
+        return None
+    try:
+        rec = Reconstructor.load(None if source == INIT_PRETRAINED else source, device="cpu", tta=False, self_check=False)
+    except ValueError as err:
+        raise ValueError(f"train.init_from={source}: {err}") from None
+    theirs, ours = rec.model_config, cfg.model
+    differ = [f"{key}={getattr(theirs, key)!r} (the run: {getattr(ours, key)!r})" for key in GENERATOR_FIELDS
+              if getattr(theirs, key) != getattr(ours, key)]
+    if differ:
+        raise ValueError(f"train.init_from={source}: its generator is not the run's: model.{', model.'.join(differ)}")
+    return rec.generator.state_dict()
+
+
 def _resume(model: Pix2PixModel, cfg: RunConfig, run_dir: Path, ranks: Ranks) -> tuple[int, float]:
     """``(first step, best score)``: ``(0, inf)``, or the checkpoint's after loading its weights
     and RNG states into ``model`` and this process. Rank 0 first removes a killed run's
@@ -253,7 +278,7 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
     weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor, cfg.model.height_reference)
     if cfg.model.fill_relative_loss:
         base = model.generator.base_fill(batch["scan"], batch["mask"])
-        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR)
+        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR, height_loss_power(cfg.model.height_loss))
         weight = per_map.expand_as(batch["mask"]) if weight is None else weight * per_map
     model.set_input(model_input(batch["scan"], batch["mask"], cfg.model.in_channels), batch["target"], weight)
     model.optimize_parameters()

@@ -541,3 +541,24 @@ def test_the_thinned_map_is_moved_towards_the_membrane_and_weighs_the_correction
     full, thinned_map = checked_maps(fills, model, scan, mask, thinned, Regimes(hidden, None), membrane=True, keep_far=False)
     torch.testing.assert_close(thinned_map, torch.full_like(scan, 0.5), rtol=0, atol=1e-6)
     torch.testing.assert_close(full, 0.5 * (fills[1, :1] + fills[2, :1]), rtol=0, atol=1e-6)
+
+
+def test_the_check_measures_each_masks_distance_to_the_scan_once(monkeypatch):
+    """The far share of the full mask and of the thinned one are each computed once per check
+    (the check blends with them five times), and the maps are those of a fresh share each time."""
+    import warp_terrain.inference.selfcheck as selfcheck
+
+    scan, mask, _ = plane_scan()
+    rec = reconstructor(0.05, self_check=True, check_reach=True)
+    rec.check_tensions = (0.0, 1.0)
+    expected = rec.predict_maps(scan, mask)
+    calls = []
+    plain = selfcheck.far_share
+
+    def counted(observed, *args, **kwargs):
+        calls.append(observed)
+        return plain(observed, *args, **kwargs)
+
+    monkeypatch.setattr(selfcheck, "far_share", counted)
+    assert torch.equal(rec.predict_maps(scan, mask), expected)
+    assert len(calls) == 2 and not torch.equal(calls[0], calls[1])

@@ -110,10 +110,13 @@ def pick(candidates: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 class Regimes:
     """Where each weight the check measures holds: ``near`` on the random hidden cells, ``away``
     on the outer cells (``None`` without the reach); a map's weight at a cell is
-    ``near (1 - far) + away far`` with ``far = far_share(mask)`` of the map the weight is used on."""
+    ``near (1 - far) + away far`` with ``far = far_share(mask)`` of the map the weight is used on
+    (computed once per mask: a check blends the full scan's maps three times and the thinned
+    scan's twice)."""
 
     def __init__(self, hidden: torch.Tensor, outer: torch.Tensor | None):
         self.hidden, self.outer = hidden, outer
+        self._far: list[tuple[torch.Tensor, torch.Tensor]] = []
 
     def measure(self, statistic, *args):
         """``(near, away)``: ``statistic(*args, cells)`` on the hidden cells and on the outer ones."""
@@ -123,18 +126,25 @@ class Regimes:
         """``(near, away)``: the least-squares weights of ``candidate - fill`` (``correction_weight``)."""
         return self.measure(correction_weight, candidate, fill, measured)
 
-    @staticmethod
-    def at(values, observed: torch.Tensor) -> torch.Tensor:
+    def far(self, observed: torch.Tensor) -> torch.Tensor:
+        """``far_share(observed)``, remembered for the same mask tensor."""
+        for seen, share in self._far:
+            if seen is observed:
+                return share
+        share = far_share(observed)
+        self._far.append((observed, share))
+        return share
+
+    def at(self, values, observed: torch.Tensor) -> torch.Tensor:
         """A ``(near, away)`` pair as it holds at each cell of a map observed at ``observed``."""
         near, away = values
         if away is None:
             return near
-        far = far_share(observed).to(near.dtype)
+        far = self.far(observed).to(near.dtype)
         return near * (1.0 - far) + away * far
 
-    @classmethod
-    def apply(cls, weights, fill: torch.Tensor, candidate: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
-        return fill + cls.at(weights, observed) * (candidate - fill)
+    def apply(self, weights, fill: torch.Tensor, candidate: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
+        return fill + self.at(weights, observed) * (candidate - fill)
 
 
 def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,

@@ -147,6 +147,26 @@ def test_pyramid_levels_and_bad_arguments():
             biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), tension=bad)
 
 
+def test_the_pyramid_has_its_levels_of_weighted_means_observed_where_any_fine_cell_is():
+    """``_pyramid``: exactly ``levels`` levels, each (rounding up) half the one below; a coarse
+    cell is the mean of its observed fine cells, observed when any of them is (17 -> 9 -> 5)."""
+    from warp_terrain.models.biharmonic import _pyramid
+
+    height = torch.zeros(1, 1, 17, 17)
+    mask = torch.zeros(1, 1, 17, 17)
+    height[..., 0, 0], height[..., 0, 1], height[..., 1, 0] = 1.0, 2.0, 6.0  # (1, 1) unobserved
+    mask[..., 0, 0] = mask[..., 0, 1] = mask[..., 1, 0] = 1.0
+    height[..., 16, 16], mask[..., 16, 16] = 5.0, 1.0  # the ceil-mode edge block: one cell
+    height[..., 4, 4] = 9.0  # unobserved: never counted
+    levels = _pyramid(height, mask, pyramid_levels(17))
+    assert [v.shape[-1] for v, _ in levels] == [17, 9, 5] and all(v.shape == k.shape for v, k in levels)
+    value, known = levels[1]
+    assert value[0, 0, 0, 0] == 3.0 and value[0, 0, 8, 8] == 5.0 and value[0, 0, 2, 2] == 0.0
+    assert int(known.sum()) == 2 and known[0, 0, 0, 0] == known[0, 0, 8, 8] == 1.0
+    value, known = levels[2]
+    assert value[0, 0, 0, 0] == 3.0 and value[0, 0, 4, 4] == 5.0 and int(known.sum()) == 2
+
+
 def test_observed_plane_is_the_least_squares_plane():
     rng = np.random.default_rng(12)
     z = rng.normal(size=(30, 40))

@@ -147,6 +147,22 @@ def test_pyramid_levels_and_bad_arguments():
             biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), tension=bad)
 
 
+def test_per_map_tensions_take_the_maps_dtype_and_a_wrong_shape_is_named():
+    """A (B, 1, 1, 1) tension tensor in float64 fills float32 maps in float32 (each map as with
+    its own scalar tension); a tension tensor of the wrong shape is refused naming the shape
+    the batch needs."""
+    z = torch.as_tensor(np.stack([smooth_field(16, s) for s in (1, 2, 3)]), dtype=torch.float32)[:, None]
+    known = torch.as_tensor(np.stack([rings(16, s) for s in (1, 2, 3)]), dtype=torch.float32)[:, None]
+    tension = torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64).view(3, 1, 1, 1)
+    out = biharmonic_fill(z * known, known, tension=tension)
+    assert out.dtype == torch.float32
+    for i, t_i in enumerate((0.0, 0.5, 1.0)):
+        torch.testing.assert_close(out[i : i + 1], biharmonic_fill(z[i : i + 1] * known[i : i + 1], known[i : i + 1], tension=t_i),
+                                   rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match=r"one per map \(shape \(3, 1, 1, 1\)\)"):
+        biharmonic_fill(z * known, known, tension=torch.zeros(3, 1, 1))
+
+
 def test_the_pyramid_has_its_levels_of_weighted_means_observed_where_any_fine_cell_is():
     """``_pyramid``: exactly ``levels`` levels, each (rounding up) half the one below; a coarse
     cell is the mean of its observed fine cells, observed when any of them is (17 -> 9 -> 5)."""

@@ -145,6 +145,8 @@ def test_pyramid_levels_and_bad_arguments():
     for bad in (-0.1, 1.5):
         with pytest.raises(ValueError, match=r"tension must be in \[0, 1\]"):
             biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), tension=bad)
+    with pytest.raises(ValueError, match="steps must name at least one CG step count per level"):
+        biharmonic_fill(torch.zeros(1, 1, 8, 8), torch.ones(1, 1, 8, 8), steps=())
 
 
 def test_per_map_tensions_take_the_maps_dtype_and_a_wrong_shape_is_named():

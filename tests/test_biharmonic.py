@@ -165,6 +165,16 @@ def test_per_map_tensions_take_the_maps_dtype_and_a_wrong_shape_is_named():
         biharmonic_fill(z * known, known, tension=torch.zeros(3, 1, 1))
 
 
+def test_a_bool_or_float64_mask_fills_like_the_maps_own_dtype():
+    z = t(smooth_field(16, 4))
+    known = torch.as_tensor(rings(16, 4))[None, None]
+    expected = biharmonic_fill(z * known, known.float())
+    for mask in (known, known.double()):
+        out = biharmonic_fill(z * known, mask)
+        assert out.dtype == torch.float32
+        torch.testing.assert_close(out, expected, rtol=0, atol=0)
+
+
 def test_the_pyramid_has_its_levels_of_weighted_means_observed_where_any_fine_cell_is():
     """``_pyramid``: exactly ``levels`` levels, each (rounding up) half the one below; a coarse
     cell is the mean of its observed fine cells, observed when any of them is (17 -> 9 -> 5)."""

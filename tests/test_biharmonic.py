@@ -34,9 +34,11 @@ def grid_laplacian(h: int, w: int) -> sp.csr_matrix:
     return (g.T @ g).tocsr()
 
 
-def exact_fill(z: np.ndarray, known: np.ndarray, tension: float) -> np.ndarray:
+def exact_fill(z: np.ndarray, known: np.ndarray, tension: float, screening: float = 0.0) -> np.ndarray:
     n = grid_laplacian(*z.shape)
-    a = ((1 - tension) * (n @ n) + tension * n).tocsr()
+    k2 = screening**2
+    plate = n @ n + 2 * k2 * n + k2 * k2 * sp.identity(n.shape[0])  # (k^2 - L)^2, L = -n
+    a = ((1 - tension) * plate + tension * n).tocsr()
     k, f = known.ravel(), ~known.ravel()
     zz = np.where(known, z, 0.0).ravel().astype(np.float64)
     out = zz.copy()
@@ -70,6 +72,38 @@ def test_fill_solves_the_thin_plate_it_states(tension):
     free = ~known
     assert np.abs(out[free] - exact[free]).max() < 4e-3 * np.abs(z).max()
     np.testing.assert_array_equal(out[known], z[known].astype(np.float32))
+
+
+@pytest.mark.parametrize("tension", [0.0, 0.2])
+def test_a_screened_fill_solves_the_matern_energy_it_states(tension):
+    """``screening = k``: the thin plate's part becomes ``|L u|^2 + 2 k^2 |grad u|^2 + k^4 |u|^2``
+    (precision ``(k^2 - L)^2``): the direct sparse solve of exactly that system (it converges
+    fast: the screening conditions it)."""
+    z, known = smooth_field(48, 5) + 2.0, rings(48, 6, share=0.03)  # it screens towards 0: an offset shows it
+    exact = exact_fill(z, known, tension, screening=0.15)
+    out = biharmonic_fill(t(z * known), t(known), tension=tension, steps=(256,) * 4, screening=0.15)[0, 0].numpy()
+    assert np.abs(out[~known] - exact[~known]).max() < 1e-4 * np.abs(z).max()
+    np.testing.assert_array_equal(out[known], z[known].astype(np.float32))
+    assert np.abs(exact - exact_fill(z, known, tension)).max() > 0.02 * np.abs(z).max()  # the screening matters
+
+
+def test_a_screened_fill_returns_to_zero_far_from_the_scan_where_the_thin_plate_runs_on():
+    """Heights 1 on the first four columns only: the thin plate keeps the constant all the way
+    across (a plane is reproduced), the screened fill (k = 0.2 / cell) has fallen to a few
+    per cent 30 cells on and to nothing at the far edge; with no screening it is bit-identical
+    to the thin plate."""
+    known = np.zeros((40, 80), bool)
+    known[:, :4] = True
+    z = t(known.astype(float))
+    plate = biharmonic_fill(z, t(known))[0, 0]
+    screened = biharmonic_fill(z, t(known), screening=0.2)[0, 0]
+    torch.testing.assert_close(plate, torch.ones_like(plate), rtol=0, atol=1e-4)
+    assert 0.0 < screened[:, 34].max() < 0.05 and screened[:, -1].abs().max() < 1e-3
+    assert (screened[:, 4:35].diff(dim=1) < 0).all()  # it falls away from the scan
+    torch.testing.assert_close(biharmonic_fill(z, t(known), screening=0.0)[0, 0], plate, rtol=0, atol=0)
+    for bad in (-0.1, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="screening must be a finite number >= 0"):
+            biharmonic_fill(z, t(known), screening=bad)
 
 
 def test_full_tension_is_the_membrane_of_the_harmonic_baseline():
@@ -291,10 +325,10 @@ def test_observed_cells_move_at_most_the_bound():
     assert moved[observed].max() <= 0.1 + 1e-6 and moved[~observed].max() > 1.0
 
 
-@pytest.mark.parametrize("refine", [0, 2])
-def test_generator_exports_to_onnx_and_matches(tmp_path, refine):
+@pytest.mark.parametrize("refine,screened", [(0, 0.0), (2, 0.1)])
+def test_generator_exports_to_onnx_and_matches(tmp_path, refine, screened):
     onnxruntime = pytest.importorskip("onnxruntime")
-    g = build_generator(model_config(start_from_fill=False, refine=refine)).eval()
+    g = build_generator(model_config(start_from_fill=False, refine=refine, screened_input=screened)).eval()
     x = condition(size=48)
     path = tmp_path / "g.onnx"
     torch.onnx.export(g, (x,), str(path), input_names=["condition"], output_names=["out"], dynamo=False)
@@ -329,8 +363,40 @@ def test_the_refine_head_lets_one_input_cell_reach_its_own_output_cell():
         ModelConfig(name="paper", refine=2).validate()
 
 
+def test_the_screened_input_is_the_screened_fill_about_the_mean_and_widens_a_net_to_the_same_model():
+    """``screened_input = k``: the net's third input is ``screened_fill`` (the thin plate of the
+    heights about their observed mean, screened by k, plus the mean) about the same reference and
+    scale as the base fill; a state dict of the same net without it widens by a zero column to a
+    model that predicts exactly what the narrow one did."""
+    from warp_terrain.models.fill import mean_observed, screened_fill, widen_to_screened_input
+
+    torch.manual_seed(4)
+    x = condition(size=48)
+    scan, mask = x[:, :1], x[:, 1:]
+    mean = mean_observed(scan, mask)
+    torch.testing.assert_close(screened_fill(scan, mask, 0.1), biharmonic_fill(scan - mean, mask, screening=0.1) + mean,
+                               rtol=0, atol=0)
+    narrow = build_generator(model_config(start_from_fill=False, refine=1)).eval()
+    wide = build_generator(model_config(start_from_fill=False, refine=1, screened_input=0.1)).eval()
+    seen = []
+    wide.net.register_forward_pre_hook(lambda _, args: seen.append(args[0]))
+    wide.load_state_dict(widen_to_screened_input(narrow.state_dict(), wide))
+    with torch.no_grad():
+        torch.testing.assert_close(wide(x), narrow(x), rtol=0, atol=0)
+    reference = observed_plane(scan, mask)
+    scale = ((((scan - reference) ** 2) * mask).sum() / mask.sum()).sqrt().clamp_min(0.05)
+    torch.testing.assert_close(seen[0][:, 2:], (screened_fill(scan, mask, 0.1) - reference) / scale, rtol=0, atol=1e-5)
+    with torch.no_grad():  # the new column does reach the output
+        next(m for m in wide.net.modules() if isinstance(m, torch.nn.Conv2d)).weight[:, 2:].fill_(1.0)
+        assert (wide(x) - narrow(x)).abs().max() > 1e-3
+    other = build_generator(model_config(start_from_fill=False, refine=1, ngf=8, screened_input=0.1))
+    with pytest.raises(ValueError, match="cannot widen to .* by one input channel"):
+        widen_to_screened_input(narrow.state_dict(), other)
+
+
 def test_config_names_bad_fill_and_reference():
-    for key, value in (("base_fill", "kriging"), ("height_reference", "median"), ("observed_bound", -1.0)):
+    for key, value in (("base_fill", "kriging"), ("height_reference", "median"), ("observed_bound", -1.0),
+                       ("screened_input", -0.1), ("screened_input", float("inf"))):
         with pytest.raises(ValueError, match=key):
             model_config(**{key: value})
 

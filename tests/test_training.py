@@ -206,6 +206,18 @@ def test_init_from_starts_the_generator_from_a_model_file_and_refuses_another_ne
     with pytest.raises(ValueError, match="train.init_from"):
         run_config(*TINY, f"train.init_from={tmp_path / 'missing.pt'}")
 
+    # a run that adds the screened fill as an input starts from the file's net widened by a zero column
+    residual = ["model=fill_residual", *TINY[1:], "model.dropout=0.0", "model.refine=1"]
+    narrow = run_config(*residual).model
+    Reconstructor(build_generator(narrow), narrow, device="cpu").save(tmp_path / "narrow.pt")
+    expected = Reconstructor.load(tmp_path / "narrow.pt", device="cpu").generator.state_dict()
+    wide = setup(run_config(*residual, "model.screened_input=0.1", f"train.init_from={tmp_path / 'narrow.pt'}"), tmp_path / "wide")
+    got = wide.model.generator.state_dict()
+    widened = [k for k in expected if got[k].shape != expected[k].shape]  # the U-Net's first convolution, the head's
+    assert len(widened) == 2 and all(torch.equal(got[k][:, :-1], expected[k]) and not got[k][:, -1].any() for k in widened)
+    assert all(torch.equal(got[k], expected[k]) for k in expected if k not in widened)
+    wide.writer.close()
+
     steps = ["train.steps=1", "train.val_every=1", "train.checkpoint_every=1", "train.image_every=1", "model.dropout=0.0"]
     first = train(run_config(*TINY, *steps), tmp_path / "resumed")
     resumed = setup(run_config(*TINY, *steps, "train.resume=true", f"train.init_from={tmp_path / 'source.pt'}"), tmp_path / "resumed")

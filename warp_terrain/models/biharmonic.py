@@ -15,6 +15,11 @@ of flattening (a plane is reproduced exactly, at any hole shape). A little tensi
 membrane (Laplace interpolation: each free cell the mean of its neighbours, as the
 ``harmonic`` baseline), which never overshoots: the better fill of rough ground and noisy scans.
 
+``screening = k > 0`` (1 / cells) adds ``2 k^2 |grad u|^2 + k^4 |u|^2`` to the thin plate's
+part: with ``tension = 0`` the energy of a Matern field's SPDE (Lindgren et al. 2011: precision
+``(k^2 - L)^2``), whose fill returns to zero within about ``1 / k`` cells of the last
+observation instead of running a slope on (pass heights about a reference to return to it).
+
 The linear system ``A_FF u_F = -A_FK h_K`` (F: free cells, K: observed; ``A = (1-t) L^T L + t
 G^T G``, symmetric positive definite once one cell is observed) is solved matrix-free by
 conjugate gradients, cascadic multigrid style: heights and masks are averaged down a pyramid
@@ -45,13 +50,16 @@ def _laplacian(u: torch.Tensor) -> torch.Tensor:
     return p[..., :-2, 1:-1] + p[..., 2:, 1:-1] + p[..., 1:-1, :-2] + p[..., 1:-1, 2:] - 4.0 * u
 
 
-def _operator(u: torch.Tensor, tension: float | torch.Tensor) -> torch.Tensor:
-    """``A u = (1 - t) L L u - t L u``: ``L`` is symmetric, so this is the gradient of E / 2.
-    ``t`` a number, or a (B, 1, 1, 1) tensor: each map its own tension."""
+def _operator(u: torch.Tensor, tension: float | torch.Tensor, k2: float = 0.0) -> torch.Tensor:
+    """``A u = (1 - t) (L L u - 2 k2 L u + k2^2 u) - t L u``: ``L`` is symmetric, so this is the
+    gradient of E / 2. ``t`` a number, or a (B, 1, 1, 1) tensor: each map its own tension;
+    ``k2`` the squared screening in this level's cells."""
     lap = _laplacian(u)
     if isinstance(tension, (int, float)) and tension == 1:
         return -lap
     out = _laplacian(lap)
+    if k2 > 0:
+        out = out - 2.0 * k2 * lap + (k2 * k2) * u
     return out if isinstance(tension, (int, float)) and tension == 0 else (1.0 - tension) * out - tension * lap
 
 
@@ -59,16 +67,17 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).sum(dim=(1, 2, 3), keepdim=True)
 
 
-def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float | torch.Tensor) -> torch.Tensor:
+def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float | torch.Tensor,
+                       k2: float = 0.0) -> torch.Tensor:
     """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``.
 
     Where a map has converged (``r = 0``, so ``p = 0``) both step sizes are ``0 / tiny = 0``:
     no branch, so a batch runs the same ops for every map (and exports as a plain graph)."""
-    r = -free * _operator(u, tension)
+    r = -free * _operator(u, tension, k2)
     p = r
     rr = _dot(r, r)
     for _ in range(steps):
-        ap = free * _operator(p, tension)
+        ap = free * _operator(p, tension, k2)
         alpha = rr / _dot(p, ap).clamp_min(1e-30)
         u = u + alpha * p
         r = r - alpha * ap
@@ -101,10 +110,11 @@ def pyramid_levels(size: int, coarsest: int = COARSEST) -> int:
 
 
 def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float | torch.Tensor = 0.0,
-                    steps: tuple[int, ...] = DEFAULT_STEPS) -> torch.Tensor:
+                    steps: tuple[int, ...] = DEFAULT_STEPS, screening: float = 0.0) -> torch.Tensor:
     """(B, 1, H, W) heights (m) and 0/1 mask -> heights with the unobserved cells filled by the
     thin plate under ``tension`` (in [0, 1]: 0 the thin plate, 1 the membrane; a number, or a
-    (B, 1, 1, 1) tensor to solve maps of several tensions in one batch); observed cells are
+    (B, 1, 1, 1) tensor to solve maps of several tensions in one batch) and ``screening`` (k >= 0,
+    1 / cells: the fill returns to 0 about 1 / k cells from the scan); observed cells are
     returned exactly."""
     if isinstance(tension, torch.Tensor):
         if tension.shape != (height.shape[0], 1, 1, 1) or not bool(((tension >= 0) & (tension <= 1)).all()):
@@ -114,6 +124,8 @@ def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float | t
         raise ValueError(f"tension must be in [0, 1], got {tension}")
     if not steps:
         raise ValueError("steps must name at least one CG step count per level")
+    if not 0.0 <= screening < float("inf"):
+        raise ValueError(f"screening must be a finite number >= 0 (1 / cells), got {screening}")
     mask = mask.to(height.dtype)
     levels = _pyramid(height, mask, pyramid_levels(max(height.shape[-2:])))
     u = None
@@ -127,5 +139,5 @@ def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float | t
             up = up[..., : value.shape[-2], : value.shape[-1]]
             u = known * value + (1.0 - known) * up
         count = steps[min(depth, len(steps) - 1)] if level > 0 else steps[-1]
-        u = conjugate_gradient(u, 1.0 - known, count, tension)
+        u = conjugate_gradient(u, 1.0 - known, count, tension, (screening * 2.0**level) ** 2)
     return u

@@ -25,7 +25,7 @@ HEIGHT_LOSSES = ("l1", "l2")
 #: from another run's weights (``train.init_from``) must agree on every one. The rest (losses,
 #: learning rates, the discriminator) may change.
 GENERATOR_FIELDS = ("name", "in_channels", "out_channels", "ngf", "unet_depth", "refine", "norm", "dropout", "residual",
-                    "height_scale_min", "base_fill", "height_reference", "observed_bound", "uncertainty")
+                    "height_scale_min", "base_fill", "height_reference", "observed_bound", "screened_input", "uncertainty")
 
 
 @dataclass
@@ -77,6 +77,10 @@ class ModelConfig:
     # residual only: the most (m) the correction may move an observed cell (bound * tanh(c / bound));
     # 0 leaves observed cells free
     observed_bound: float = 0.0
+    # residual only: > 0 gives the net a second fill as a third input channel, the thin plate
+    # screened by this k (1 / cells) towards the mean observed height: it returns to the mean
+    # about 1 / k cells from the scan, where the base fill runs the slope on; 0: no second fill
+    screened_input: float = 0.0
     # residual only: weight each map's loss by 1 / the base fill's mean error on its unobserved
     # cells (at least 1 cm; with height_loss="l2" by 1 / its mean squared error), so the net
     # learns to improve on the fill on every map, not only on the maps where the fill errs by metres
@@ -111,6 +115,10 @@ class ModelConfig:
                 f"expected one of {', '.join(HEIGHT_REFERENCES)}")
         require(_is_number(self.observed_bound) and 0.0 <= self.observed_bound < float("inf"), "observed_bound",
                 self.observed_bound, "expected a finite number >= 0 (metres; 0 leaves observed cells free)")
+        require(_is_number(self.screened_input) and 0.0 <= self.screened_input < float("inf"), "screened_input",
+                self.screened_input, "expected a finite number >= 0 (1 / cells; 0: no second fill)")
+        require(not self.screened_input or self.residual, "screened_input", self.screened_input,
+                "needs residual=true (the second fill is an input of the residual generator)")
         require(not self.relief_relative_loss or (self.residual and self.height_scale_min > 0), "relief_relative_loss",
                 self.relief_relative_loss, "needs residual=true and height_scale_min > 0 (the spread's floor)")
         require(not self.fill_relative_loss or self.residual, "fill_relative_loss", self.fill_relative_loss,

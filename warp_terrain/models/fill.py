@@ -14,7 +14,9 @@ With ``height_scale_min > 0`` the heights it sees are also divided by the map's 
 observed heights (:func:`observed_spread`) and its correction multiplied by it: the net then
 works in units of the map's own relief, so a 5 cm meadow and a 4 m hillside look alike to it.
 A second output channel (``model.uncertainty``: a log-variance) is passed on, shifted by
-``2 log s`` so that it too is in metres squared.
+``2 log s`` so that it too is in metres squared. With ``screening > 0`` the net also sees a
+second fill (:func:`screened_fill`: the thin plate screened towards the mean observed height),
+so it can learn which far field a map wants: the slope run on, or a return to the mean.
 """
 
 from __future__ import annotations
@@ -48,6 +50,15 @@ def push_pull_fill(height: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) 
         trust = (w * 4.0).clamp(max=1.0)  # a quarter-observed block is trusted fully
         estimate = trust * (v / w.clamp_min(eps)) + (1.0 - trust) * coarse
     return estimate
+
+
+def screened_fill(height: torch.Tensor, mask: torch.Tensor, screening: float) -> torch.Tensor:
+    """The thin plate screened by ``screening`` (k, 1 / cells) about the mean observed height: it
+    keeps the observed cells and returns to their mean within about ``1 / k`` cells of the scan
+    (:func:`biharmonic_fill`; no gradient: it has no parameters)."""
+    with torch.no_grad():
+        mean = mean_observed(height, mask)
+        return biharmonic_fill(height - mean, mask, screening=screening) + mean
 
 
 def mean_observed(height: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
@@ -102,12 +113,15 @@ class FillResidualGenerator(nn.Module):
     - s is 1, or the spread of the observed heights about the reference (>= ``height_scale_min``
       metres) if that is > 0;
     - ``observed_bound`` > 0 (m): on observed cells the correction is at most this big
-      (``bound * tanh(c / bound)``), so the map keeps what the sensor saw to within its error.
+      (``bound * tanh(c / bound)``), so the map keeps what the sensor saw to within its error;
+    - ``screening`` > 0 (1 / cells): a third input channel, :func:`screened_fill` about the same
+      reference and scale as the base fill (appended last, so a net trained without it widens
+      by a zero column to exactly the same model).
 
     Output channels after the first (a log-variance) come back as ``net + 2 log s``."""
 
     def __init__(self, net: nn.Module, height_scale_min: float = 0.0, base: str = "push_pull", reference: str = "mean",
-                 observed_bound: float = 0.0):
+                 observed_bound: float = 0.0, screening: float = 0.0):
         super().__init__()
         if base not in BASE_FILLS:
             raise ValueError(f"base fill {base!r}: expected one of {', '.join(BASE_FILLS)}")
@@ -115,7 +129,10 @@ class FillResidualGenerator(nn.Module):
             raise ValueError(f"height reference {reference!r}: expected one of {', '.join(HEIGHT_REFERENCES)}")
         self.net = net
         self.height_scale_min = float(height_scale_min)
+        if not 0.0 <= screening < float("inf"):
+            raise ValueError(f"screening must be a finite number >= 0 (1 / cells), got {screening}")
         self.base, self.reference, self.observed_bound = base, reference, float(observed_bound)
+        self.screening = float(screening)
 
     def base_fill(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The classical fill the net corrects (no gradient: it has no parameters)."""
@@ -135,13 +152,32 @@ class FillResidualGenerator(nn.Module):
             scale = observed_spread(scan, mask, reference, self.height_scale_min)
         else:  # metres: dividing and multiplying by exactly 1 changes no bit
             scale = torch.ones_like(reference[:, :, :1, :1])
-        out = self.net(torch.cat([(fill - reference) / scale, mask], dim=1))
+        inputs = [(fill - reference) / scale, mask]
+        if self.screening > 0:
+            inputs.append((screened_fill(scan, mask, self.screening) - reference) / scale)
+        out = self.net(torch.cat(inputs, dim=1))
         correction = scale * out[:, :1]
         if self.observed_bound > 0:
             bounded = self.observed_bound * torch.tanh(correction / self.observed_bound)
             correction = mask * bounded + (1.0 - mask) * correction
         height = fill + correction
         return height if out.shape[1] == 1 else torch.cat([height, out[:, 1:] + 2.0 * torch.log(scale)], dim=1)
+
+
+def widen_to_screened_input(state: dict[str, torch.Tensor], generator: FillResidualGenerator) -> dict[str, torch.Tensor]:
+    """A state dict of the same generator without the screened input -> one for ``generator``
+    (with it): every input convolution gets a zero column for the last input channel, so the
+    widened model predicts exactly what the narrow one did until training moves that column."""
+    target = generator.state_dict()
+    out = {}
+    for key, value in state.items():
+        want = target[key].shape if key in target else value.shape
+        if value.shape != want:
+            if not (value.dim() == 4 and value.shape[0] == want[0] and value.shape[2:] == want[2:] and want[1] == value.shape[1] + 1):
+                raise ValueError(f"{key}: shape {tuple(value.shape)} cannot widen to {tuple(want)} by one input channel")
+            value = torch.cat([value, value.new_zeros(value.shape[0], 1, *value.shape[2:])], dim=1)
+        out[key] = value
+    return out
 
 
 def unobserved_weight_map(mask: torch.Tensor, unobserved_weight: float) -> torch.Tensor:

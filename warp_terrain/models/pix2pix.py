@@ -43,10 +43,11 @@ def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
     `cfg.uncertainty` it has one more output channel (the log-variance)."""
     cfg = ModelConfig.coerce(cfg).validate()
     channels = cfg.out_channels + int(cfg.uncertainty)
+    inputs = cfg.in_channels + int(cfg.screened_input > 0)  # the screened fill is the last input
     if cfg.name == "paper":
-        net = PaperUNet(cfg.in_channels, channels, cfg.ngf, cfg.norm, cfg.dropout)
+        net = PaperUNet(inputs, channels, cfg.ngf, cfg.norm, cfg.dropout)
     else:
-        net = UNet(cfg.in_channels, channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout, cfg.refine)
+        net = UNet(inputs, channels, cfg.ngf, cfg.unet_depth, cfg.norm, cfg.dropout, cfg.refine)
     if not cfg.residual:
         return net
     if cfg.start_from_fill:
@@ -54,7 +55,8 @@ def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
         nn.init.zeros_(last.weight)
         if last.bias is not None:
             nn.init.zeros_(last.bias)
-    return FillResidualGenerator(net, cfg.height_scale_min, cfg.base_fill, cfg.height_reference, cfg.observed_bound)
+    return FillResidualGenerator(net, cfg.height_scale_min, cfg.base_fill, cfg.height_reference, cfg.observed_bound,
+                                 cfg.screened_input)
 
 
 def build_discriminator(cfg: ModelConfig | Mapping) -> nn.Module:

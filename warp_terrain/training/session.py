@@ -38,7 +38,7 @@ from ..evaluation.metrics import calibration, masked_rmse
 from ..inference.reconstructor import Reconstructor
 from ..models import Pix2PixModel, build_model
 from ..models.config import GENERATOR_FIELDS
-from ..models.fill import fill_relative_weight, loss_weight_map
+from ..models.fill import fill_relative_weight, loss_weight_map, widen_to_screened_input
 from ..models.inputs import model_input
 from ..models.pix2pix import height_loss_power
 from ..models.uncertainty import standard_deviation
@@ -234,11 +234,13 @@ def initial_weights(cfg: RunConfig) -> dict[str, torch.Tensor] | None:
     except ValueError as err:
         raise ValueError(f"train.init_from={source}: {err}") from None
     theirs, ours = rec.model_config, cfg.model
+    widen = theirs.screened_input == 0 and ours.screened_input > 0  # the run adds the second fill: a zero column
     differ = [f"{key}={getattr(theirs, key)!r} (the run: {getattr(ours, key)!r})" for key in GENERATOR_FIELDS
-              if getattr(theirs, key) != getattr(ours, key)]
+              if getattr(theirs, key) != getattr(ours, key) and not (widen and key == "screened_input")]
     if differ:
         raise ValueError(f"train.init_from={source}: its generator is not the run's: model.{', model.'.join(differ)}")
-    return rec.generator.state_dict()
+    state = rec.generator.state_dict()
+    return widen_to_screened_input(state, build_model(ours).generator) if widen else state
 
 
 def _resume(model: Pix2PixModel, cfg: RunConfig, run_dir: Path, ranks: Ranks) -> tuple[int, float]:

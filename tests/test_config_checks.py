@@ -160,6 +160,7 @@ INVALID = {
     "model.base_fill": "kriging",
     "model.height_reference": "median",
     "model.observed_bound": -0.1,
+    "model.screened_input": -0.1,
     "model.start_from_fill": "maybe",
     "model.fill_relative_loss": "maybe",
     "train.steps": 0,

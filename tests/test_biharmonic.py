@@ -394,6 +394,25 @@ def test_the_screened_input_is_the_screened_fill_about_the_mean_and_widens_a_net
         widen_to_screened_input(narrow.state_dict(), other)
 
 
+def test_widening_takes_one_more_input_column_and_refuses_anything_else():
+    """Only a 4-D weight that lacks exactly the last input column widens (zeros there); another
+    shape, a vector that differs, or a key the generator lacks is refused naming it."""
+    from warp_terrain.models.fill import widen_to_screened_input
+
+    target = torch.nn.Conv2d(3, 4, 3)
+    narrow = torch.nn.Conv2d(2, 4, 3).state_dict()
+    wide = widen_to_screened_input(narrow, target)
+    assert wide["weight"].shape == (4, 3, 3, 3) and torch.equal(wide["weight"][:, :2], narrow["weight"])
+    assert not wide["weight"][:, 2].any() and torch.equal(wide["bias"], narrow["bias"])
+    for bad in (torch.nn.Conv2d(2, 5, 3), torch.nn.Conv2d(2, 4, 5), torch.nn.Conv2d(1, 4, 3)):  # outputs, kernel, two columns
+        with pytest.raises(ValueError, match=r"weight: shape .* cannot widen to \(4, 3, 3, 3\) by one input channel"):
+            widen_to_screened_input(bad.state_dict(), target)
+    with pytest.raises(ValueError, match=r"bias: shape \(5,\) cannot widen to \(4,\)"):
+        widen_to_screened_input({"bias": torch.zeros(5)}, target)
+    with pytest.raises(ValueError, match="not in the widened generator: extra"):
+        widen_to_screened_input({**narrow, "extra": torch.zeros(1)}, target)
+
+
 def test_config_names_bad_fill_and_reference():
     for key, value in (("base_fill", "kriging"), ("height_reference", "median"), ("observed_bound", -1.0),
                        ("screened_input", -0.1), ("screened_input", float("inf"))):

@@ -562,3 +562,25 @@ def test_the_check_measures_each_masks_distance_to_the_scan_once(monkeypatch):
     monkeypatch.setattr(selfcheck, "far_share", counted)
     assert torch.equal(rec.predict_maps(scan, mask), expected)
     assert len(calls) == 2 and not torch.equal(calls[0], calls[1])
+
+
+def test_a_pair_of_weights_holds_at_each_cell_by_the_maps_far_share():
+    """``Regimes.at``: ``near (1 - far) + away far`` per cell, ``far = far_share(mask)``: the near
+    weight next to the scan, the away one beyond the reach, the blend in between; no away weight
+    (no reach) is the near one everywhere."""
+    from warp_terrain.inference.selfcheck import Regimes, far_share
+
+    mask = torch.zeros(2, 1, 40, 40)
+    mask[0, :, :5, :5] = 1.0
+    mask[1, :, :, :3] = 1.0
+    near = torch.tensor([0.3, -0.2], dtype=torch.float64).view(2, 1, 1, 1)
+    away = torch.tensor([0.8, 1.5], dtype=torch.float64).view(2, 1, 1, 1)
+    regimes = Regimes(torch.zeros_like(mask), torch.zeros_like(mask))
+    got = regimes.at((near, away), mask)
+    far = far_share(mask).double()
+    assert ((far > 0) & (far < 1)).any() and (far == 0).any() and (far == 1).any()
+    assert got.dtype == torch.float64
+    torch.testing.assert_close(got, near * (1 - far) + away * far, rtol=0, atol=1e-12)
+    torch.testing.assert_close(got[far == 0], near.expand_as(got)[far == 0], rtol=0, atol=0)
+    torch.testing.assert_close(got[far == 1], away.expand_as(got)[far == 1], rtol=0, atol=0)
+    assert regimes.at((near, None), mask) is near

@@ -169,9 +169,12 @@ def widen_to_screened_input(state: dict[str, torch.Tensor], generator: FillResid
     (with it): every input convolution gets a zero column for the last input channel, so the
     widened model predicts exactly what the narrow one did until training moves that column."""
     target = generator.state_dict()
+    unknown = sorted(set(state) - set(target))
+    if unknown:
+        raise ValueError(f"not in the widened generator: {', '.join(unknown)}")
     out = {}
     for key, value in state.items():
-        want = target[key].shape if key in target else value.shape
+        want = target[key].shape
         if value.shape != want:
             if not (value.dim() == 4 and value.shape[0] == want[0] and value.shape[2:] == want[2:] and want[1] == value.shape[1] + 1):
                 raise ValueError(f"{key}: shape {tuple(value.shape)} cannot widen to {tuple(want)} by one input channel")

@@ -409,8 +409,8 @@ def test_widening_takes_one_more_input_column_and_refuses_anything_else():
             widen_to_screened_input(bad.state_dict(), target)
     with pytest.raises(ValueError, match=r"bias: shape \(5,\) cannot widen to \(4,\)"):
         widen_to_screened_input({"bias": torch.zeros(5)}, target)
-    with pytest.raises(ValueError, match="not in the widened generator: extra"):
-        widen_to_screened_input({**narrow, "extra": torch.zeros(1)}, target)
+    with pytest.raises(ValueError, match="^not in the widened generator: extra, more$"):
+        widen_to_screened_input({**narrow, "more": torch.zeros(1), "extra": torch.zeros(1)}, target)
 
 
 def test_config_names_bad_fill_and_reference():

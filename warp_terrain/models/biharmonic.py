@@ -50,7 +50,7 @@ def _laplacian(u: torch.Tensor) -> torch.Tensor:
     return p[..., :-2, 1:-1] + p[..., 2:, 1:-1] + p[..., 1:-1, :-2] + p[..., 1:-1, 2:] - 4.0 * u
 
 
-def _operator(u: torch.Tensor, tension: float | torch.Tensor, k2: float = 0.0) -> torch.Tensor:
+def _operator(u: torch.Tensor, tension: float | torch.Tensor, k2: float) -> torch.Tensor:
     """``A u = (1 - t) (L L u - 2 k2 L u + k2^2 u) - t L u``: ``L`` is symmetric, so this is the
     gradient of E / 2. ``t`` a number, or a (B, 1, 1, 1) tensor: each map its own tension;
     ``k2`` the squared screening in this level's cells."""
@@ -68,8 +68,9 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension: float | torch.Tensor,
-                       k2: float = 0.0) -> torch.Tensor:
-    """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``.
+                       k2: float) -> torch.Tensor:
+    """``steps`` CG iterations on the free cells of ``u`` (the others are held), from ``u``;
+    ``k2`` the squared screening in ``u``'s cells (0: none).
 
     Where a map has converged (``r = 0``, so ``p = 0``) both step sizes are ``0 / tiny = 0``:
     no branch, so a batch runs the same ops for every map (and exports as a plain graph)."""

@@ -88,12 +88,16 @@ def test_a_screened_fill_solves_the_matern_energy_it_states(tension):
 
 
 def test_a_short_step_schedule_gives_its_last_entry_to_every_finer_level():
-    """``steps`` lists CG steps per level, coarsest first; levels past its end get its last entry:
-    ``(0, 50)`` on four levels is ``(0, 50, 50, 50)`` exactly, not ``(0, 0, 0, 50)``."""
+    """``steps`` lists CG steps per level, coarsest first; levels past its end get its last entry
+    and the finest level always does: ``(0, 50)`` on four levels is ``(0, 50, 50, 50)`` exactly,
+    not ``(0, 0, 0, 50)``, and ``(0, 50, 50, 50, 7)`` is ``(0, 50, 50, 7)``."""
     z, known = t(smooth_field(48, 9)), t(rings(48, 10))  # 48 -> 24 -> 12 -> 6: four levels
     short = biharmonic_fill(z * known, known, steps=(0, 50))
     torch.testing.assert_close(short, biharmonic_fill(z * known, known, steps=(0, 50, 50, 50)), rtol=0, atol=0)
     assert (short - biharmonic_fill(z * known, known, steps=(0, 0, 0, 50))).abs().max() > 1e-4
+    long = biharmonic_fill(z * known, known, steps=(0, 50, 50, 50, 7))
+    torch.testing.assert_close(long, biharmonic_fill(z * known, known, steps=(0, 50, 50, 7)), rtol=0, atol=0)
+    assert (long - short).abs().max() > 1e-4
 
 
 def test_a_screened_fill_returns_to_zero_far_from_the_scan_where_the_thin_plate_runs_on():

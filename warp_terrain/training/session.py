@@ -36,7 +36,7 @@ from ..data.stream import validation_set
 from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import calibration, masked_rmse
 from ..inference.reconstructor import Reconstructor
-from ..models import Pix2PixModel, build_model
+from ..models import Pix2PixModel, build_generator, build_model
 from ..models.config import GENERATOR_FIELDS
 from ..models.fill import fill_relative_weight, loss_weight_map, widen_to_screened_input
 from ..models.inputs import model_input
@@ -240,7 +240,7 @@ def initial_weights(cfg: RunConfig) -> dict[str, torch.Tensor] | None:
     if differ:
         raise ValueError(f"train.init_from={source}: its generator is not the run's: model.{', model.'.join(differ)}")
     state = rec.generator.state_dict()
-    return widen_to_screened_input(state, build_model(ours).generator) if widen else state
+    return widen_to_screened_input(state, build_generator(ours)) if widen else state
 
 
 def _resume(model: Pix2PixModel, cfg: RunConfig, run_dir: Path, ranks: Ranks) -> tuple[int, float]:

@@ -7,7 +7,7 @@ least-squares plane (``plane_kK``); ``k`` (1 / cells) is the screening of a Mate
 (Lindgren et al. 2011: precision ``(k^2 - L)^2``), ``k = 0`` the thin plate (``mean_k0`` is the
 thin plate, ``plane_k0`` the shipped model's base fill). Far from every observation a screened
 fill returns to its reference within about ``1 / k`` cells instead of running a slope on. Solved
-converged-ish (the same cascadic CG as ``models/biharmonic.py``, many more steps), in float64.
+converged-ish (``biharmonic_fill``'s cascadic CG with many more steps), in float64.
 
 Per map, three label-free judges pick a candidate: ``outer`` (the least error on the scan's
 outermost 30 % of observed cells, hidden: ``selfcheck.outer_cells``), ``sector`` (the outer half
@@ -23,12 +23,11 @@ import argparse
 import math
 
 import torch
-import torch.nn.functional as F
 
 from warp_terrain.evaluation.real import DEM_FAMILIES, dem_family_set, real_data_dir
 from warp_terrain.evaluation.testsets import make_eval_set
 from warp_terrain.inference.selfcheck import outer_cells
-from warp_terrain.models import biharmonic as bh
+from warp_terrain.models.biharmonic import biharmonic_fill
 from warp_terrain.models.fill import mean_observed, observed_plane
 
 KAPPAS = (0.0, 0.03, 0.06, 0.1)
@@ -36,35 +35,12 @@ STEPS = (200, 200, 200, 400, 800)
 LAGS = torch.tensor([1, 2, 3, 4, 6, 8, 11, 16, 22, 32, 45, 64], dtype=torch.float64)
 
 
-def _operator(u, k2):
-    lap = bh._laplacian(u)
-    return bh._laplacian(lap) - 2.0 * k2 * lap + k2 * k2 * u
-
-
 def screened_fill(height, mask, kappa: float, reference: str):
-    """The candidate ``{reference}_k{kappa}`` (float64)."""
+    """The candidate ``{reference}_k{kappa}`` (float64): ``biharmonic_fill(screening=kappa)`` of
+    the heights about the reference, with the long step schedule."""
     height, mask = height.double(), mask.double()
     ref = observed_plane(height, mask) if reference == "plane" else mean_observed(height, mask).expand_as(height)
-    levels = bh._pyramid((height - ref) * mask, mask, bh.pyramid_levels(height.shape[-1]))
-    u = None
-    for depth, (value, known) in enumerate(reversed(levels)):
-        level = len(levels) - 1 - depth
-        if u is None:
-            u = known * value
-        else:
-            up = F.interpolate(u, scale_factor=2.0, mode="bilinear", align_corners=False)[..., : value.shape[-2], : value.shape[-1]]
-            u = known * value + (1.0 - known) * up
-        k2 = (kappa * 2.0**level) ** 2  # k in this level's cells
-        free = 1.0 - known
-        r = -free * _operator(u, k2)
-        p, rr = r, bh._dot(r, r)
-        for _ in range(STEPS[min(depth, len(STEPS) - 1)] if level > 0 else STEPS[-1]):
-            ap = free * _operator(p, k2)
-            alpha = rr / bh._dot(p, ap).clamp_min(1e-30)
-            u, r = u + alpha * p, r - alpha * ap
-            rr_new = bh._dot(r, r)
-            p, rr = r + (rr_new / rr.clamp_min(1e-30)) * p, rr_new
-    return u + ref
+    return biharmonic_fill(height - ref, mask, steps=STEPS, screening=kappa) + ref
 
 
 def candidates(scan, mask) -> dict:

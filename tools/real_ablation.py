@@ -1,6 +1,7 @@
 """The real suite and the synthetic settings for the classical fills, the torch fills and models.
 
 usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL ...
+       python tools/real_ablation.py --report tools/real_ablation_<names>.json
   MODEL: a checkpoint, a Reconstructor file, or `shipped`; NAME containing `_check` turns the
   self-check on, `_reach` / `_noreach` the check's reach on / off, `_sigma` / `_nosigma` the
   check's per-map sigma on / off (else as the file says), `_notta` the 8-orientation average
@@ -9,8 +10,8 @@ usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL 
   (else as the file says). The classical fills are scored too; with --fills-cache their scores are read from FILE
   when it exists (the fills are deterministic: same seeds, same maps) and written to it when
   not. Writes tools/real_ablation_<names>.json and prints, per family, each model's RMSE over
-  the best classical fill's and its share of scored cells within 1 sigma (needs `make
-  real-data`; README, "Transfer to real ground").
+  the best classical fill's and its share of scored cells within 1 sigma, then one markdown
+  table row per model (needs `make real-data`; README, "Transfer to real ground").
 """
 
 import argparse
@@ -69,12 +70,37 @@ def synthetic_scores(predictors: dict, size: int) -> dict:
     return rows
 
 
+def report(real: dict, synthetic: dict, nets: list) -> None:
+    """Print, per family, each model's RMSE over the best classical fill's (and its share within 1
+    sigma), then one markdown table row per model."""
+    rows = [(e["family"], {m: v[headline(e)] for m, v in e["metrics"].items()}, {m: v.get("within_1sigma") for m, v in e["metrics"].items()})
+            for e in real["families"]]
+    rows += [(key, {m: v["rmse_unobserved"] for m, v in row.items()}, {m: v.get("within_1sigma") for m, v in row.items()})
+             for key, row in synthetic.items()]
+    print("\nmodel / best classical fill (within 1 sigma)")
+    for family, rmse, within in rows:
+        best = min((m for m in rmse if m in BASELINES), key=rmse.get)
+        cells = [f"{m} {rmse[m] / rmse[best]:.2f}" + (f" ({100 * within[m]:.0f} %)" if within.get(m) is not None else "") for m in nets]
+        print(f"{family[:36]:36s} best {best:10s} {rmse[best]:.4f}  " + "  ".join(cells))
+    print("\nas table rows (README, \"Transfer to real ground\": the families in the order above)")
+    for m in nets:
+        ratios = [rmse[m] / min(v for k, v in rmse.items() if k in BASELINES) for _, rmse, _ in rows]
+        print(f"| {m} | " + " | ".join(f"{r:.2f}" for r in ratios) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fills-cache", help="JSON of the classical fills' scores: read if it exists, else written")
     parser.add_argument("--size", type=int, default=32, help="maps per family and per synthetic setting")
+    parser.add_argument("--report", metavar="JSON", help="print the tables of a run's tools/real_ablation_<names>.json again, and stop")
     parser.add_argument("models", nargs="*", help="NAME=MODEL")
     args = parser.parse_args()
+    if args.report:
+        with open(args.report) as f:
+            saved = json.load(f)
+        fills = set(BASELINES) | {"push_pull", "bh_torch"}
+        report(saved["real"], saved["synthetic"], [m for m in saved["real"]["methods"] if m not in fills])
+        return
     torch.set_num_threads(int(os.environ.get("THREADS", "1")))
     fills = dict(BASELINES)
     fills["push_pull"] = push_pull_fill
@@ -101,15 +127,7 @@ def main() -> None:
     names = "_".join(a.split("=")[0] for a in args.models) or "fills"
     with open(os.path.join(os.path.dirname(__file__), f"real_ablation_{names}.json"), "w") as f:
         json.dump({"real": real, "synthetic": synthetic}, f)
-    rows = [(e["family"], {m: v[headline(e)] for m, v in e["metrics"].items()}, {m: v.get("within_1sigma") for m, v in e["metrics"].items()})
-            for e in real["families"]]
-    rows += [(key, {m: v["rmse_unobserved"] for m, v in row.items()}, {m: v.get("within_1sigma") for m, v in row.items()})
-             for key, row in synthetic.items()]
-    print("\nmodel / best classical fill (within 1 sigma)")
-    for family, rmse, within in rows:
-        best = min((m for m in rmse if m in BASELINES), key=rmse.get)
-        cells = [f"{m} {rmse[m] / rmse[best]:.2f}" + (f" ({100 * within[m]:.0f} %)" if within.get(m) is not None else "") for m in nets]
-        print(f"{family[:36]:36s} best {best:10s} {rmse[best]:.4f}  " + "  ".join(cells))
+    report(real, synthetic, list(nets))
 
 
 if __name__ == "__main__":

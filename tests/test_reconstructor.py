@@ -87,6 +87,23 @@ class _ScanPlusRamp(torch.nn.Module):
         return torch.cat([scan + ramp, torch.full_like(scan, 2 * np.log(0.3))], dim=1)
 
 
+@pytest.mark.parametrize("self_check", [False, True])
+def test_predicted_maps_are_plain_tensors_the_caller_may_update(tmp_path, self_check):
+    """The maps are computed in inference mode, yet come back as ordinary tensors: updated in
+    place, or used in an autograd graph, without an error; the same maps each call."""
+    rec = _untrained(tmp_path, tta=False)
+    rec.self_check = self_check
+    batch = wt.generate_batch(2, seed=4, device="cpu")
+    height, sigma = rec.predict_maps_with_uncertainty(batch.scan, batch.mask)
+    assert not height.is_inference() and not height.requires_grad
+    again = rec.predict_maps(batch.scan, batch.mask)
+    assert torch.equal(again, height)
+    height.add_(1.0)  # an inference tensor would refuse this outside inference mode
+    weight = torch.ones((), requires_grad=True)
+    (weight * again).sum().backward()
+    torch.testing.assert_close(weight.grad, again.sum())
+
+
 def test_test_time_augmentation_averages_the_eight_orientations():
     cfg = ModelConfig(name="unet", in_channels=2, uncertainty=True)
     scan, mask = torch.randn(2, 1, 121, 121), torch.ones(2, 1, 121, 121)

@@ -14,7 +14,6 @@ from warp_terrain.inference.selfcheck import (
     SIGMA_COVERAGE,
     SIGMA_MIN_CELLS,
     best_fill,
-    candidate_fills,
     correction_weight,
     far_share,
     hidden_cells,
@@ -72,23 +71,35 @@ def test_best_fill_picks_per_map_the_candidate_that_errs_least_on_hidden_cells()
     torch.testing.assert_close(pick(torch.stack([a, b]), torch.tensor([0, 1])), torch.stack([a[0], b[1]]))
 
 
-def test_candidate_fills_are_each_maps_base_its_thin_plate_and_its_membrane_in_one_solve():
+@pytest.mark.parametrize("base", ["plane_biharmonic", "biharmonic", "push_pull"])
+def test_base_and_plain_fills_are_each_maps_base_its_thin_plate_and_its_membrane_in_one_solve(base, monkeypatch):
+    """The fills the check weighs: each map's base fill (as ``base_fill`` alone computes it),
+    then the plain fill of the first ``count`` maps under each tension; with a thin-plate base
+    all of them in a single solve, whatever the maps solved beside them."""
+    import warp_terrain.models.fill as fill_module
     from warp_terrain.models.biharmonic import biharmonic_fill
 
     g = torch.Generator().manual_seed(3)
-    scan = torch.randn(3, 1, 24, 24, generator=g)
+    scan = torch.randn(3, 1, 24, 24, generator=g) + torch.linspace(0, 4, 24)  # a tilt: the plane base differs
     mask = (torch.rand(3, 1, 24, 24, generator=g) < 0.3).float()
     scan = scan * mask
-    base = torch.full_like(scan, 7.0)  # stands for the model's base fill: any surface
-    fills = candidate_fills(base, scan, mask)
-    assert fills.shape == (3, 3, 1, 24, 24) and torch.equal(fills[0], base)
-    for b in range(3):  # a map's fills do not depend on the maps solved beside it, nor on their tension
-        torch.testing.assert_close(fills[1, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1]), rtol=0, atol=1e-5)
-        torch.testing.assert_close(fills[2, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1], tension=1.0), rtol=0, atol=1e-5)
-    assert (fills[1] - fills[2]).abs().max() > 0.1  # two different fills
-    assert torch.equal(candidate_fills(base, scan, mask, tensions=()), base[None])
-    one = candidate_fills(base, scan, mask, tensions=(0.5,))
-    torch.testing.assert_close(one[1], biharmonic_fill(scan, mask, tension=0.5), rtol=0, atol=0)
+    generator = FillResidualGenerator(Offset(0.0), base=base)
+    solves = []
+    monkeypatch.setattr(fill_module, "biharmonic_fill", lambda *a, **k: solves.append(a[0].shape[0]) or biharmonic_fill(*a, **k))
+    bases, plain = generator.base_and_plain_fills(scan, mask, (0.0, 1.0), count=2)
+    assert solves == ([3 + 2 * 2] if base != "push_pull" else [2 * 2])  # one solve
+    assert bases.shape == (3, 1, 24, 24) and plain.shape == (2, 2, 1, 24, 24)
+    torch.testing.assert_close(bases, generator.base_fill(scan, mask), rtol=0, atol=1e-5)
+    for b in range(2):  # a map's fills do not depend on the maps solved beside it, nor on their tension
+        torch.testing.assert_close(plain[0, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1]), rtol=0, atol=1e-5)
+        torch.testing.assert_close(plain[1, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1], tension=1.0), rtol=0, atol=1e-5)
+    assert (plain[0] - plain[1]).abs().max() > 0.1  # two different fills
+    if base == "plane_biharmonic":
+        assert (bases[:2] - plain[0]).abs().max() > 1e-3  # the base fill is not the plain thin plate
+    alone, none = generator.base_and_plain_fills(scan, mask)
+    assert torch.equal(alone, generator.base_fill(scan, mask)) and none.shape == (0, 3, 1, 24, 24)
+    _, one = generator.base_and_plain_fills(scan, mask, tensions=(0.5,))
+    torch.testing.assert_close(one[0], biharmonic_fill(scan, mask, tension=0.5), rtol=0, atol=1e-5)
     with pytest.raises(ValueError, match="tension must be in"):
         biharmonic_fill(scan, mask, tension=torch.tensor([0.0, 1.0, 2.0]).view(3, 1, 1, 1))
 
@@ -495,15 +506,14 @@ def test_the_membrane_moves_the_smooth_fill_but_is_not_one_of_the_smooth_candida
     towards the membrane by a least-squares share strictly between 0 and 1: the map is
     about ``thin plate + beta (membrane - thin plate)`` (the fills as the check solves them: the
     scan and its thinned copy in one batch), not the membrane itself."""
-    from warp_terrain.inference.selfcheck import candidate_fills
-
     _, mask, truth = _bowl_scan()
     generator = torch.Generator().manual_seed(3)
     scan = (truth + 0.12 * torch.randn(truth.shape, generator=generator)) * mask
     rec = _push_pull_reconstructor((0.0, 1.0))
     thinned = mask * (~hidden_cells(mask)).to(mask.dtype)
     both_scans, both_masks = torch.cat([scan, scan * thinned]), torch.cat([mask, thinned])
-    fills = candidate_fills(rec.generator.base_fill(both_scans, both_masks), both_scans, both_masks, (0.0, 1.0))
+    bases, plain = rec.generator.base_and_plain_fills(both_scans, both_masks, (0.0, 1.0))
+    fills = torch.cat([bases[None], plain])
     hidden = hidden_cells(mask)
     errors = [float((((f[1:] - scan) * hidden) ** 2).sum()) for f in fills]  # the thinned scan's fills
     assert errors[2] < errors[1] < errors[0]  # membrane, thin plate, base
@@ -534,7 +544,7 @@ def test_the_thinned_map_is_moved_towards_the_membrane_and_weighs_the_correction
     scan = torch.full((1, 1, size, size), 0.5)
     ramp = torch.linspace(0.0, 0.3, size).view(1, 1, 1, size).expand(1, 1, size, size)
     base, thin_plate, membrane = 5.0 + ramp, ramp * 0.0, torch.ones(1, 1, size, size)
-    # each candidate of the full scan, then of the thinned one (as candidate_fills stacks them)
+    # each candidate of the full scan, then of the thinned one (as ``Reconstructor._predict`` stacks them)
     fills = torch.stack([torch.cat([f + 0.1, f]) for f in (base, thin_plate, membrane)])
     fills[1, :1] = -0.2  # the full scan's thin plate differs from the thinned one's
     model = torch.cat([torch.full_like(scan, 2.0), torch.full_like(scan, 1.5)])

@@ -14,7 +14,7 @@ where it does worse (the map is then the classical fill), in between where it he
 The fill itself is chosen the same way, per map: the smooth fill (the model's base fill or the
 plain thin plate, whichever errs less on the hidden cells), moved towards the membrane (Laplace
 interpolation: rough ground, noisy scans) by the least-squares share the hidden cells support
-(``candidate_fills``, ``checked_maps``). A label-free check of
+(``checked_maps``; the fills come from the generator's ``base_and_plain_fills``). A label-free check of
 every map, at the cost of a second pass on the thinned scan.
 
 What the check measures is how the model does next to measured cells: a hidden cell has kept
@@ -41,8 +41,6 @@ measured; the outer cells still weigh the membrane and scale the sigma.
 from __future__ import annotations
 
 import torch
-
-from ..models.biharmonic import biharmonic_fill
 
 #: Share of a map's observed cells hidden for the check (the real-data suite hides 20 % too).
 CHECK_SHARE = 0.2
@@ -78,21 +76,6 @@ def correction_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.T
 CANDIDATE_TENSIONS = (0.0, 1.0)
 #: The candidates of a check without the membrane (files packaged before it).
 THIN_PLATE_ONLY = (0.0,)
-
-
-def candidate_fills(bases: torch.Tensor, scans: torch.Tensor, masks: torch.Tensor,
-                    tensions: tuple[float, ...] = CANDIDATE_TENSIONS) -> torch.Tensor:
-    """(1 + len(tensions), N, 1, S, S): for each of the ``N`` maps, the model's base fill
-    (``bases``), then the plain fill of its scan under each tension, every one of them in a
-    single batched solve (the self-check passes the scan and its thinned copy together: one
-    call costs less than several on a CPU)."""
-    n = scans.shape[0]
-    if not tensions:
-        return bases[None]
-    per_map = torch.tensor(tensions, dtype=scans.dtype, device=scans.device).repeat_interleave(n).view(-1, 1, 1, 1)
-    k = len(tensions)
-    fills = biharmonic_fill(scans.repeat(k, 1, 1, 1), masks.repeat(k, 1, 1, 1), tension=per_map if k > 1 else float(tensions[0]))
-    return torch.cat([bases[None], fills.view(k, n, *scans.shape[1:])])
 
 
 def best_fill(candidates: torch.Tensor, measured: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
@@ -153,7 +136,7 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
     the same way, the one of the thinned scan (what the check's cells are scored on).
 
     ``fills`` (K, 2N, 1, S, S) and ``model`` (2N, 1, S, S) hold the full scans' maps, then the
-    thinned scans' (``candidate_fills`` of both; the net's maps of both). The classical fill is
+    thinned scans' (the generator's ``base_and_plain_fills`` of both; the net's maps of both). The classical fill is
     the smooth candidate (the base fill or the thin plate: whichever errs least on the hidden
     cells), and with ``membrane`` (``fills[-1]``) moved towards the membrane by the share the
     check's cells support (``regimes``: near the scan and far from it); the model's correction

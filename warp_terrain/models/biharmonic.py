@@ -47,7 +47,7 @@ def _laplacian(u: torch.Tensor) -> torch.Tensor:
     Four shifted slices of the padded map, not a 3x3 convolution: 1.5x faster for one map on
     the CPU, 5x for eight (one input channel leaves a convolution nothing to vectorise)."""
     p = F.pad(u, (1, 1, 1, 1), mode="replicate")
-    return p[..., :-2, 1:-1] + p[..., 2:, 1:-1] + p[..., 1:-1, :-2] + p[..., 1:-1, 2:] - 4.0 * u
+    return torch.add(p[..., :-2, 1:-1] + p[..., 2:, 1:-1] + p[..., 1:-1, :-2] + p[..., 1:-1, 2:], u, alpha=-4.0)
 
 
 def _operator(u: torch.Tensor, tension: float | torch.Tensor, k2: float) -> torch.Tensor:
@@ -80,10 +80,10 @@ def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension:
     for _ in range(steps):
         ap = free * _operator(p, tension, k2)
         alpha = rr / _dot(p, ap).clamp_min(1e-30)
-        u = u + alpha * p
-        r = r - alpha * ap
+        u = torch.addcmul(u, alpha, p)  # fused: fewer ops per step (a small map's solve is op-bound)
+        r = torch.addcmul(r, alpha, ap, value=-1.0)
         rr_new = _dot(r, r)
-        p = r + (rr_new / rr.clamp_min(1e-30)) * p
+        p = torch.addcmul(r, rr_new / rr.clamp_min(1e-30), p)
         rr = rr_new
     return u
 

@@ -136,11 +136,34 @@ class FillResidualGenerator(nn.Module):
 
     def base_fill(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The classical fill the net corrects (no gradient: it has no parameters)."""
+        return self.base_and_plain_fills(scan, mask)[0]
+
+    def base_and_plain_fills(self, scan: torch.Tensor, mask: torch.Tensor, tensions: tuple[float, ...] = (),
+                             count: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(base, plain)``: the base fill (B, 1, H, W) of every map, and the plain fills
+        (len(tensions), count, 1, H, W) of the first ``count`` maps (all if None): the heights as
+        they are filled under each of ``tensions`` (:func:`biharmonic_fill`; the fills the
+        self-check weighs). With a thin-plate base all of them are one batched solve: on a CPU a
+        solve's time goes mostly to its count of ops, not its count of maps."""
+        count = scan.shape[0] if count is None else int(count)
         with torch.no_grad():
-            if self.base == "plane_biharmonic":
-                plane = observed_plane(scan, mask)
-                return biharmonic_fill(scan - plane, mask) + plane
-            return biharmonic_fill(scan, mask) if self.base == "biharmonic" else push_pull_fill(scan, mask)
+            offset = observed_plane(scan, mask) if self.base == "plane_biharmonic" else torch.zeros_like(scan[:, :, :1, :1])
+            if self.base == "push_pull":
+                base, heights, masks, tension = push_pull_fill(scan, mask), [], [], []
+            else:
+                base, heights, masks, tension = None, [scan - offset], [mask], [0.0] * scan.shape[0]
+            for t in tensions:
+                heights.append(scan[:count])
+                masks.append(mask[:count])
+                tension += [float(t)] * count
+            if heights:
+                per_map = torch.tensor(tension, dtype=scan.dtype, device=scan.device).view(-1, 1, 1, 1)
+                solved = biharmonic_fill(torch.cat(heights), torch.cat(masks),
+                                         tension=per_map if len(set(tension)) > 1 else tension[0])
+                if base is None:
+                    base, solved = solved[: scan.shape[0]] + offset, solved[scan.shape[0]:]
+            plain = solved.view(len(tensions), count, *scan.shape[1:]) if tensions else scan.new_zeros(0, count, *scan.shape[1:])
+            return base, plain
 
     def forward(self, condition: torch.Tensor, fill: torch.Tensor | None = None) -> torch.Tensor:
         """``fill``: the base fill of this condition if the caller has it already (the

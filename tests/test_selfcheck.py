@@ -78,6 +78,7 @@ def test_base_and_plain_fills_are_each_maps_base_its_thin_plate_and_its_membrane
     all of them in a single solve, whatever the maps solved beside them."""
     import warp_terrain.models.fill as fill_module
     from warp_terrain.models.biharmonic import biharmonic_fill
+    from warp_terrain.models.fill import observed_plane, push_pull_fill
 
     g = torch.Generator().manual_seed(3)
     scan = torch.randn(3, 1, 24, 24, generator=g) + torch.linspace(0, 4, 24)  # a tilt: the plane base differs
@@ -89,7 +90,11 @@ def test_base_and_plain_fills_are_each_maps_base_its_thin_plate_and_its_membrane
     bases, plain = generator.base_and_plain_fills(scan, mask, (0.0, 1.0), count=2)
     assert solves == ([3 + 2 * 2] if base != "push_pull" else [2 * 2])  # one solve
     assert bases.shape == (3, 1, 24, 24) and plain.shape == (2, 2, 1, 24, 24)
-    torch.testing.assert_close(bases, generator.base_fill(scan, mask), rtol=0, atol=1e-5)
+    plane = observed_plane(scan, mask)
+    want = {"plane_biharmonic": lambda: biharmonic_fill(scan - plane, mask) + plane,
+            "biharmonic": lambda: biharmonic_fill(scan, mask), "push_pull": lambda: push_pull_fill(scan, mask)}[base]()
+    torch.testing.assert_close(bases, want, rtol=0, atol=1e-5)  # the base fill, solved beside the plain ones
+    torch.testing.assert_close(generator.base_fill(scan, mask), want, rtol=0, atol=1e-5)
     for b in range(2):  # a map's fills do not depend on the maps solved beside it, nor on their tension
         torch.testing.assert_close(plain[0, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1]), rtol=0, atol=1e-5)
         torch.testing.assert_close(plain[1, b:b + 1], biharmonic_fill(scan[b:b + 1], mask[b:b + 1], tension=1.0), rtol=0, atol=1e-5)

@@ -14,7 +14,7 @@ import scipy.sparse.linalg as sla
 import torch
 from skimage.restoration import inpaint_biharmonic
 
-from warp_terrain.models.biharmonic import biharmonic_fill, pyramid_levels
+from warp_terrain.models.biharmonic import biharmonic_fill, biharmonic_fills, pyramid_levels
 from warp_terrain.models.config import ModelConfig
 from warp_terrain.models.fill import FillResidualGenerator, observed_plane, push_pull_fill
 from warp_terrain.models.pix2pix import build_generator
@@ -85,6 +85,23 @@ def test_a_screened_fill_solves_the_matern_energy_it_states(tension):
     assert np.abs(out[~known] - exact[~known]).max() < 1e-4 * np.abs(z).max()
     np.testing.assert_array_equal(out[known], z[known].astype(np.float32))
     assert np.abs(exact - exact_fill(z, known, tension)).max() > 0.02 * np.abs(z).max()  # the screening matters
+
+
+def test_problems_solved_together_are_each_solved_as_alone():
+    """``biharmonic_fills``: each problem's maps come back in order, each under its own tension,
+    as each would alone (to float rounding: the batch only changes how sums are vectorised)."""
+    z, known = smooth_field(48, 3), rings(48, 4)
+    a = (t(z * known).repeat(2, 1, 1, 1), t(known).repeat(2, 1, 1, 1), 0.0)
+    b = (t(2.0 * z * known), t(known), 1.0)
+    c = (t(z * known) - 1.0, t(known), 0.5)
+    out = biharmonic_fills([a, b, c])
+    assert [o.shape[0] for o in out] == [2, 1, 1]
+    for problem, got in zip((a, b, c), out):
+        torch.testing.assert_close(got, biharmonic_fill(problem[0], problem[1], tension=problem[2]), rtol=0, atol=1e-5)
+    assert (out[1] - 2.0 * out[0][:1]).abs().max() > 0.01  # the membrane is not the thin plate scaled
+    same = biharmonic_fills([a, (t(z * known), t(known), 0.0)])  # one tension: the plain solve
+    torch.testing.assert_close(same[1], biharmonic_fill(t(z * known), t(known)), rtol=0, atol=0)
+    assert biharmonic_fills([]) == []
 
 
 def test_a_short_step_schedule_gives_its_last_entry_to_every_finer_level():

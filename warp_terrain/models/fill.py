@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .biharmonic import biharmonic_fill
+from .biharmonic import biharmonic_fill, biharmonic_fills
 
 #: base fills a ``FillResidualGenerator`` can correct
 BASE_FILLS = ("push_pull", "biharmonic", "plane_biharmonic")
@@ -147,23 +147,16 @@ class FillResidualGenerator(nn.Module):
         solve's time goes mostly to its count of ops, not its count of maps."""
         count = scan.shape[0] if count is None else int(count)
         with torch.no_grad():
-            offset = observed_plane(scan, mask) if self.base == "plane_biharmonic" else torch.zeros_like(scan[:, :, :1, :1])
+            plain = [(scan[:count], mask[:count], float(t)) for t in tensions]
             if self.base == "push_pull":
-                base, heights, masks, tension = push_pull_fill(scan, mask), [], [], []
-            else:
-                base, heights, masks, tension = None, [scan - offset], [mask], [0.0] * scan.shape[0]
-            for t in tensions:
-                heights.append(scan[:count])
-                masks.append(mask[:count])
-                tension += [float(t)] * count
-            if heights:
-                per_map = torch.tensor(tension, dtype=scan.dtype, device=scan.device).view(-1, 1, 1, 1)
-                solved = biharmonic_fill(torch.cat(heights), torch.cat(masks),
-                                         tension=per_map if len(set(tension)) > 1 else tension[0])
-                if base is None:
-                    base, solved = solved[: scan.shape[0]] + offset, solved[scan.shape[0]:]
-            plain = solved.view(len(tensions), count, *scan.shape[1:]) if tensions else scan.new_zeros(0, count, *scan.shape[1:])
-            return base, plain
+                base, fills = push_pull_fill(scan, mask), biharmonic_fills(plain)
+            elif self.base == "biharmonic":
+                base, *fills = biharmonic_fills([(scan, mask, 0.0), *plain])
+            else:  # plane_biharmonic
+                plane = observed_plane(scan, mask)
+                base, *fills = biharmonic_fills([(scan - plane, mask, 0.0), *plain])
+                base = base + plane
+            return base, torch.stack(fills) if fills else scan.new_zeros(0, count, *scan.shape[1:])
 
     def forward(self, condition: torch.Tensor, fill: torch.Tensor | None = None) -> torch.Tensor:
         """``fill``: the base fill of this condition if the caller has it already (the

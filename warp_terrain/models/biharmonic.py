@@ -146,9 +146,9 @@ def biharmonic_fill(height: torch.Tensor, mask: torch.Tensor, tension: float | t
 
 def biharmonic_fills(problems: list[tuple[torch.Tensor, torch.Tensor, float]]) -> list[torch.Tensor]:
     """The fills of several ``(heights, mask, tension)`` problems, each of (B_i, 1, H, W) maps,
-    in order, as one batched :func:`biharmonic_fill` (each map under its problem's tension): a
-    CPU spends a small map's solve mostly on the count of ops, not of maps, so six maps in one
-    solve cost far less than three solves of two."""
+    in order, as one batched :func:`biharmonic_fill` (each map under its problem's tension): on a
+    CPU the coarse levels of a small map's solve cost their count of ops, not of maps, so one
+    solve of six maps costs less than a solve of two and one of four."""
     if not problems:
         return []
     heights = torch.cat([h for h, _, _ in problems])

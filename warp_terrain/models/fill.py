@@ -143,8 +143,8 @@ class FillResidualGenerator(nn.Module):
         """``(base, plain)``: the base fill (B, 1, H, W) of every map, and the plain fills
         (len(tensions), count, 1, H, W) of the first ``count`` maps (all if None): the heights as
         they are filled under each of ``tensions`` (:func:`biharmonic_fill`; the fills the
-        self-check weighs). With a thin-plate base all of them are one batched solve: on a CPU a
-        solve's time goes mostly to its count of ops, not its count of maps."""
+        self-check weighs). With a thin-plate base all of them are one batched solve
+        (:func:`biharmonic_fills`)."""
         count = scan.shape[0] if count is None else int(count)
         with torch.no_grad():
             plain = [(scan[:count], mask[:count], float(t)) for t in tensions]

@@ -99,14 +99,13 @@ def main() -> None:
     parser.add_argument("--report", metavar="JSON", help="print the tables of a run's tools/real_ablation_<names>.json again, and stop")
     parser.add_argument("models", nargs="*", help="NAME=MODEL")
     args = parser.parse_args()
+    fills = {**BASELINES, **TORCH_FILLS}
     if args.report:
         with open(args.report) as f:
             saved = json.load(f)
-        fills = {**BASELINES, **TORCH_FILLS}
         report(saved["real"], saved["synthetic"], [m for m in saved["real"]["methods"] if m not in fills])
         return
     torch.set_num_threads(int(os.environ.get("THREADS", "1")))
-    fills = {**BASELINES, **TORCH_FILLS}
     say = lambda line: print(line, flush=True)  # noqa: E731
     nets = models(args.models)
     if args.fills_cache and os.path.exists(args.fills_cache):

@@ -51,30 +51,26 @@ class Ensemble(nn.Module):
         return torch.cat([height, variance.log()], dim=1)
 
 
-def load(path: str) -> Reconstructor:
-    if "+" not in path:
-        return Reconstructor.load(None if path == "shipped" else path, device="cpu")
+def ensemble(path: str) -> tuple[Ensemble, object, dict]:
+    """``(generator, model config, meta)`` of ``MODEL+MODEL...``: the first member's config and meta."""
     recs = [Reconstructor.load(None if p == "shipped" else p, device="cpu") for p in path.split("+")]
     first = recs[0]
     for rec in recs[1:]:
         c, f = rec.model_config, first.model_config
         if (c.base_fill, c.height_reference, c.uncertainty) != (f.base_fill, f.height_reference, f.uncertainty):
             raise ValueError(f"ensemble members differ in base fill, reference or uncertainty: {path}")
-    generator = Ensemble([r.generator for r in recs], first.has_uncertainty)
-    return Reconstructor(generator, first.model_config, first.meta, device="cpu")
+    return Ensemble([r.generator for r in recs], first.has_uncertainty), first.model_config, first.meta
 
 
 def main() -> None:
     plain_load = Reconstructor.load
 
-    def patched(path=None, device=None, **kwargs):
+    def load(path=None, device=None, **kwargs):
         if path is not None and "+" in str(path):
-            rec = load(str(path))
-            return Reconstructor(rec.generator, rec.model_config, rec.meta, device, **kwargs)
+            return Reconstructor(*ensemble(str(path)), device, **kwargs)
         return plain_load(path, device=device, **kwargs)
 
-    Reconstructor.load = staticmethod(patched)
-    real_ablation.Reconstructor = Reconstructor
+    Reconstructor.load = staticmethod(load)
     real_ablation.main()
 
 

@@ -24,6 +24,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from ..sim.batch import SimConfig, generate_batch
 from ..sim.graph import BatchGraph
 from .disk import DiskPairs
+from .scans import ScanMixConfig, ScanPairs
 from .seeds import batch_seed, validation_seed
 
 
@@ -35,19 +36,23 @@ def make_pair(sim: SimConfig, batch_size: int, seed: int, device: str) -> dict[s
 class PairStream(IterableDataset):
     """Batches ``start, start + 1, ...`` (until ``stop``) of one rank's stream. ``capture``:
     each batch replays one recorded batch (``BatchGraph``; the same pairs, bit for bit): a
-    yielded pair then shares memory with the next, so it must be used before the next is asked for."""
+    yielded pair then shares memory with the next, so it must be used before the next is asked for.
+    ``scans``: real scans mixed in (``scans``; each batch then carries ``valid``)."""
 
     def __init__(self, sim: SimConfig, batch_size: int, seed: int, rank: int = 0, start: int = 0, stop: int | None = None, device: str = "cpu",
-                 capture: bool = False):
+                 capture: bool = False, scans: ScanMixConfig | None = None):
         super().__init__()
         self.sim, self.batch_size, self.seed, self.rank = sim, batch_size, seed, rank
         self.start, self.stop, self.device, self.capture = start, stop, device, capture
+        self.scans = scans if scans is not None and scans.enabled() else None
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         info = get_worker_info()
         worker, workers = (info.id, info.num_workers) if info is not None else (0, 1)
         step = self.start + worker
         graph = BatchGraph(self.batch_size, self.sim, self.device) if self.capture else None
+        data = self.sim.data
+        real = ScanPairs(self.scans, data.map_size, data.map_cell, data.fill) if self.scans is not None else None
         while self.stop is None or step < self.stop:
             seed = batch_seed(self.seed, self.rank, step)
             if graph is None:
@@ -57,6 +62,8 @@ class PairStream(IterableDataset):
                 pair = {"scan": b.scan, "mask": b.mask, "target": b.target}
                 if info is not None:  # a worker process: sending a tensor moves it to shared memory, off the graph's arrays
                     pair = {k: v.clone() for k, v in pair.items()}
+            if real is not None:
+                pair = real.mix(pair, seed)
             pair["step"] = torch.tensor(step)
             yield pair
             step += workers
@@ -67,7 +74,7 @@ def _init_worker(_worker_id: int) -> None:
 
 
 def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, start: int, stop: int, device: str, workers: int, prefetch: int = 4, dataset: str = "",
-                     capture: bool = False):
+                     capture: bool = False, scans: ScanMixConfig | None = None):
     """An iterator over the training batches ``start..stop-1`` (dicts of tensors with ``step``).
 
     ``dataset``: empty for the live stream; else a folder written by ``warp-terrain generate``,
@@ -75,15 +82,16 @@ def training_batches(sim: SimConfig, batch_size: int, seed: int, rank: int, star
     ``step`` is fixed by ``(dataset, seed, rank, step)`` (``DiskPairs.batches``), so resuming
     sees the same batches. Its maps must have ``sim``'s size; a dataset made with another
     config than ``sim`` gets a warning (validation still uses ``sim``). ``capture``: the live
-    stream replays a recorded batch per step (``PairStream``).
+    stream replays a recorded batch per step (``PairStream``). ``scans``: real scans mixed into
+    the live stream (``scans``, ``PairStream``).
     """
     if dataset:
         return _dataset_batches(sim, str(dataset), batch_size, seed, rank, start, stop)
     on_cuda = device.startswith("cuda")
     if workers == 0 or on_cuda:
-        return iter(PairStream(sim, batch_size, seed, rank, start, stop, device, capture))
+        return iter(PairStream(sim, batch_size, seed, rank, start, stop, device, capture, scans))
     loader = DataLoader(
-        PairStream(sim, batch_size, seed, rank, start, stop, "cpu", capture),
+        PairStream(sim, batch_size, seed, rank, start, stop, "cpu", capture, scans),
         batch_size=None,
         num_workers=workers,
         multiprocessing_context="spawn",

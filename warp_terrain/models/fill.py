@@ -226,14 +226,17 @@ def loss_weight_map(scan: torch.Tensor, mask: torch.Tensor, unobserved_weight: f
     return inverse.expand_as(mask) if weight is None else weight * inverse
 
 
-def fill_relative_weight(base: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, floor: float, power: int = 1) -> torch.Tensor:
+def fill_relative_weight(base: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, floor: float, power: int = 1,
+                         valid: torch.Tensor | None = None) -> torch.Tensor:
     """(B, 1, 1, 1) per-map loss weights ``1 / e`` normalised to a batch mean of 1, where ``e``
     is the base fill's mean absolute error on the map's unobserved cells (at least ``floor``
     metres), or with ``power=2`` (a squared-error loss) its mean squared error there (at least
     ``floor ** 2``): the loss then counts each map's error relative to what the classical fill
     leaves, so a map the fill already gets nearly right weighs as much as a hard one, and a
-    correction that helps the hard maps cannot buy that with damage to the easy ones."""
-    unobserved = 1.0 - mask
+    correction that helps the hard maps cannot buy that with damage to the easy ones. ``valid``
+    (B, 1, H, W), where given: the cells whose target is known (a real scan's returns); ``e`` is
+    then taken over the unobserved cells among them."""
+    unobserved = 1.0 - mask if valid is None else (1.0 - mask) * valid
     error = (base - target).abs() ** power
     error = (error * unobserved).sum(dim=(2, 3), keepdim=True) / unobserved.sum(dim=(2, 3), keepdim=True).clamp_min(1.0)
     inverse = 1.0 / error.clamp_min(floor**power)

@@ -1,7 +1,7 @@
 """The training run's configuration: ``TrainConfig`` (the Hydra group ``train/``) and ``RunConfig``.
 
 ``RunConfig`` is the schema of ``conf/config.yaml``: one structured config per module (terrain,
-lidar, data, model, train). Its defaults are what ``python train.py`` composes: the dataclass
+lidar, data, scans, model, train). Its defaults are what ``python train.py`` composes: the dataclass
 defaults are the one source (``conf/`` holds only what differs from them, a test checks).
 ``validate_run`` checks ranges and consistency and names the offending key.
 """
@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..core.checks import check_finite, require
+from ..data.scans import ScanMixConfig
 from ..models.config import ModelConfig
 from ..models.presets import model_preset
 from ..sim.batch import DataConfig, SimConfig
@@ -98,6 +99,7 @@ class RunConfig:
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
     lidar: LidarConfig = field(default_factory=lambda: lidar_preset("hdl32e"))
     data: DataConfig = field(default_factory=DataConfig)
+    scans: ScanMixConfig = field(default_factory=ScanMixConfig)  # real scans mixed in (data/scans.py)
     model: ModelConfig = field(default_factory=lambda: model_preset("fill_residual"))
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -108,9 +110,9 @@ class RunConfig:
 def validate_run(cfg: RunConfig, files: bool = True) -> RunConfig:
     """Check every section and their consistency; the error names the full key. ``files=False``
     does not open the DEM rasters a config names (a recorded recipe read where they are absent)."""
-    for section in ("terrain", "lidar", "data", "model", "train"):
+    for section in ("terrain", "lidar", "data", "scans", "model", "train"):
         try:
-            getattr(cfg, section).validate(files) if section == "terrain" else getattr(cfg, section).validate()
+            getattr(cfg, section).validate(files) if section in ("terrain", "scans") else getattr(cfg, section).validate()
         except ValueError as err:
             raise ValueError(f"{section}.{err}") from None
     if cfg.model.name == "paper" and cfg.data.map_size != 121:
@@ -118,7 +120,21 @@ def validate_run(cfg: RunConfig, files: bool = True) -> RunConfig:
     _check_obstacle_room(cfg)
     _check_dem_mix(cfg, files)
     _check_capture(cfg)
+    _check_scan_mix(cfg)
     return cfg
+
+
+def _check_scan_mix(cfg: RunConfig) -> None:
+    """Real scans join the live stream, and only a loss that can skip cells can learn from them."""
+    if not cfg.scans.enabled():
+        return
+    if cfg.train.dataset:
+        raise ValueError(f"scans.share={cfg.scans.share}: real scans join the live stream; train.dataset={cfg.train.dataset!r} reads pairs from disk")
+    if cfg.train.capture:
+        raise ValueError(f"scans.share={cfg.scans.share}: a replayed batch (train.capture=true) cannot mix in real scans")
+    if cfg.model.gan_mode != "none":
+        raise ValueError(f"scans.share={cfg.scans.share}: a real pair's target is unknown off its returns, which the "
+                         f"discriminator would learn; use model.gan_mode=none (got {cfg.model.gan_mode!r})")
 
 
 def _check_capture(cfg: RunConfig) -> None:

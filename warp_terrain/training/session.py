@@ -278,10 +278,13 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
             g["lr"] = run.base_lrs[id(opt)] * factor
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items() if k != "step"}
     weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor, cfg.model.height_reference)
+    valid = batch.get("valid")  # with real scans mixed in: where the target is known
     if cfg.model.fill_relative_loss:
         base = model.generator.base_fill(batch["scan"], batch["mask"])
-        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR, height_loss_power(cfg.model.height_loss))
+        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR, height_loss_power(cfg.model.height_loss), valid)
         weight = per_map.expand_as(batch["mask"]) if weight is None else weight * per_map
+    if valid is not None:
+        weight = valid if weight is None else weight * valid
     model.set_input(model_input(batch["scan"], batch["mask"], cfg.model.in_channels), batch["target"], weight)
     model.optimize_parameters()
     t2 = time.perf_counter()

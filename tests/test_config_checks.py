@@ -135,6 +135,13 @@ INVALID = {
     "data.randomize.noise_max": -0.5,
     "data.randomize.dem_probability": 1.5,
     "data.randomize.plain_probability": -0.1,
+    "scans.files": [""],
+    "scans.share": 1.5,
+    "scans.hide_min": 0.0,
+    "scans.hide_max": 1.0,
+    "scans.blob_probability": -0.1,
+    "scans.blob_cells": 0.5,
+    "scans.shift_m": -1.0,
     "model.name": "resnet",
     "model.in_channels": 3,
     "model.out_channels": 2,
@@ -234,6 +241,8 @@ def test_invalid_value_is_refused_naming_the_key(key):
         ({"terrain": {"keep_out": 3.0, "obstacle_region": 2.0, "pits": {"count_max": 1}}}, "terrain.keep_out"),
         ({"terrain": {"source": "dem"}}, "terrain.dem.files=[]: give at least one raster"),
         ({"terrain": {"source": "dem", "dem": {"files": ["/no/such/dem.tif"]}}}, "terrain.dem.files[0]='/no/such/dem.tif': no such file"),
+        ({"scans": {"share": 0.5}}, "scans.files=[]: share=0.5 mixes in real scans"),
+        ({"scans": {"hide_min": 0.3, "hide_max": 0.2}}, "scans.hide_max=0.2"),
     ],
 )
 def test_inconsistent_keys_are_refused(override, key):

@@ -240,7 +240,7 @@ def test_the_shipped_model_loads_with_weights_only_and_reconstructs_flat_ground(
     from warp_terrain.inference.reconstructor import pretrained_path
 
     path = pretrained_path()
-    assert path.is_file() and path.stat().st_size < 8 * 2**20  # small enough to ship
+    assert path.is_file() and path.stat().st_size < 20 * 2**20  # small enough to ship (issue 14: up to ~20 MB)
     calls = []
     real_load = torch.load
     monkeypatch.setattr(torch, "load", lambda *a, **k: calls.append(k.get("weights_only")) or real_load(*a, **k))

@@ -26,7 +26,17 @@ from scipy import ndimage
 from ..core.checks import check_finite, require
 from ..sim.projection import project_points
 
-__all__ = ["ScanMixConfig", "ScanPairs", "hide_cells"]
+__all__ = ["ScanMixConfig", "ScanPairs", "hide_cells", "load_scan"]
+
+
+def load_scan(path: Path) -> np.ndarray:
+    """``(N, 3)`` float64 points in the sensor frame from a ``make real-data`` scan file."""
+    with np.load(path, allow_pickle=False) as data:
+        if "points" not in data:
+            raise ValueError(f"{str(path)!r}: no 'points' array (not a make real-data scan file)")
+        points = np.asarray(data["points"], dtype=np.float64)
+    require(points.ndim == 2 and points.shape[1] == 3, str(path), points.shape, "points must be (N, 3)")
+    return points
 
 
 @dataclass
@@ -92,16 +102,7 @@ class ScanPairs:
 
     def __init__(self, cfg: ScanMixConfig, map_size: int, map_cell: float, fill: float = 0.0):
         self.cfg, self.map_size, self.map_cell, self.fill = cfg.validate(), int(map_size), float(map_cell), float(fill)
-        self.scans = [self._load(Path(name).expanduser()) for name in cfg.files]
-
-    @staticmethod
-    def _load(path: Path) -> np.ndarray:
-        with np.load(path, allow_pickle=False) as data:
-            if "points" not in data:
-                raise ValueError(f"scans.files: {str(path)!r} has no 'points' array (not a make real-data scan file)")
-            points = np.asarray(data["points"], dtype=np.float64)
-        require(points.ndim == 2 and points.shape[1] == 3 and len(points) > 0, "files", str(path), f"points must be (N, 3), got {points.shape}")
-        return points
+        self.scans = [load_scan(Path(name).expanduser()) for name in cfg.files]
 
     def count(self, batch_size: int, rng: np.random.Generator) -> int:
         """How many of a batch's ``batch_size`` pairs are real (binomial with ``share``)."""
@@ -132,10 +133,10 @@ class ScanPairs:
         """``pair`` (a synthetic batch: scan, mask, target) with some pairs replaced by real ones
         (drawn from ``seed``, so a batch is reproducible) and ``valid`` added."""
         rng = np.random.default_rng([seed, 0x5CA4])
-        batch = pair["scan"].shape[0]
-        out = {k: v.clone() for k, v in pair.items()}
+        count = self.count(pair["scan"].shape[0], rng)
+        out = {k: v.clone() for k, v in pair.items()} if count else dict(pair)  # a stream's pair may share memory with the next
         out["valid"] = torch.ones_like(pair["mask"])
-        for i in range(self.count(batch, rng)):
+        for i in range(count):
             for key, value in zip(("scan", "mask", "target", "valid"), self.pair(rng), strict=True):
                 out[key][i, 0] = torch.from_numpy(value).to(out[key].device)
         return out

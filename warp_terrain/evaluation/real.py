@@ -37,6 +37,7 @@ import torch
 from scipy import ndimage
 
 from ..core.geometry import MapGeometry
+from ..data.scans import load_scan
 from ..data.seeds import TEST_SEED_BASE
 from ..sim import generate_batch, project_points, resolve_device
 from ..sim.dem import DemConfig
@@ -136,14 +137,6 @@ class ScanSet:
     raised: torch.Tensor
     observed_share: float
     files: list[str] = field(default_factory=list)
-
-
-def load_scan(path: Path) -> np.ndarray:
-    """``(N, 3)`` float64 points in the sensor frame from a ``make real-data`` scan file."""
-    with np.load(path, allow_pickle=False) as data:
-        if "points" not in data:
-            raise ValueError(f"{str(path)!r}: no 'points' array (not a make real-data scan file)")
-        return np.asarray(data["points"], dtype=np.float64)
 
 
 def raised_cells(height: np.ndarray, observed: np.ndarray) -> np.ndarray:

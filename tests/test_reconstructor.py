@@ -63,6 +63,27 @@ def test_save_load_round_trip_with_weights_only(tmp_path, monkeypatch):
     np.testing.assert_array_equal(loaded.reconstruct(points), rec.reconstruct(points))
 
 
+def test_cpu_inference_runs_channels_last_and_saves_plain_tensors(tmp_path):
+    """On the CPU the generator's convolution weights are channels-last (oneDNN's fast layout);
+    the maps are those of the plain layout to float rounding, and the file holds contiguous
+    tensors, so it loads the same anywhere."""
+    torch.manual_seed(0)
+    plain = build_generator(SMALL).eval()
+    rec = Reconstructor(plain, SMALL, {}, device="cpu", tta=False)
+    convs = [m.weight for m in rec.generator.modules() if isinstance(m, (torch.nn.Conv2d, torch.nn.ConvTranspose2d))]
+    assert convs and all(w.is_contiguous(memory_format=torch.channels_last) for w in convs)
+    assert any(not w.is_contiguous() for w in convs)  # a (C, 1, k, k) weight is both layouts at once
+    reference = build_generator(SMALL).eval()
+    reference.load_state_dict({k: v.contiguous() for k, v in rec.generator.state_dict().items()})
+    assert all(m.weight.is_contiguous() for m in reference.modules() if isinstance(m, torch.nn.Conv2d))
+    condition = torch.randn(2, 2, 40, 40)
+    with torch.no_grad():
+        torch.testing.assert_close(rec.generator(condition), reference(condition), rtol=1e-5, atol=1e-5)
+    rec.save(tmp_path / "rec.pt", half=False)
+    saved = torch.load(tmp_path / "rec.pt", weights_only=True)["netG"]
+    assert all(v.is_contiguous() for v in saved.values())
+
+
 def test_reconstruct_keeps_the_fill_structure_of_an_untrained_residual_net(tmp_path):
     """The residual model is the push-pull fill plus a correction: zero the net's last layer
     and reconstruct() must return exactly the fill of the projected scan."""

@@ -65,6 +65,10 @@ class Reconstructor:
                  check_keep_far: bool | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
+        if self.device == "cpu":
+            # oneDNN's convolutions run channels-last without reordering each layer's input: the
+            # ngf-32 U-Net of one checked map 15 % faster on this CPU (tools/probes/infer_ab.py)
+            self.generator.to(memory_format=torch.channels_last)
         self.model_config = model_config
         self.meta = dict(meta or {})
         self.tta = bool(tta)
@@ -110,7 +114,7 @@ class Reconstructor:
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
-        weights = {k: (v.half() if half and v.is_floating_point() else v).cpu() for k, v in self.generator.state_dict().items()}
+        weights = {k: (v.half() if half and v.is_floating_point() else v).cpu().contiguous() for k, v in self.generator.state_dict().items()}
         atomic_save({"netG": weights, "model_config": self.model_config.to_dict(), "meta": self.meta}, path)
 
     # -- inference ----------------------------------------------------------------------------

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from warp_terrain.inference import reconstructor as reconstructor_module
 from warp_terrain.inference.reconstructor import Reconstructor
 from warp_terrain.inference.selfcheck import (
     CHECK_SHARE,
@@ -19,6 +20,7 @@ from warp_terrain.inference.selfcheck import (
     hidden_cells,
     outer_cells,
     pick,
+    scan_noise,
     sigma_factor,
 )
 from warp_terrain.models.config import ModelConfig
@@ -381,6 +383,77 @@ def test_sigma_factor_puts_the_coverage_share_of_the_checked_cells_within_k_sigm
     inside = ((predicted - measured).abs() <= k.view(-1, 1, 1, 1) * sigma)[0][cells[0]]
     assert int(inside.sum()) == 68  # 68 of the 100 cells lie within the scaled sigma
     assert SIGMA_MIN_CELLS > 5 and 0.68 < SIGMA_COVERAGE < 0.69
+
+
+def test_sigma_factor_takes_the_measurements_own_noise_out_of_the_checked_errors():
+    """A measured height errs by the scan's noise ``n``: cells whose checked error is
+    ``sqrt(n^2 + (r sigma)^2)`` for r = 0.01 ... 1.00 have ground errors ``r sigma``, so k is the
+    68.27 % quantile of r (0.6859), not of the checked errors over sigma; an error below the
+    noise counts as no error; ``noise = 0`` is the plain factor."""
+    sigma, n = 0.5, 0.3
+    r = torch.arange(1, 101, dtype=torch.float32).view(1, 1, 10, 10) / 100
+    measured = torch.zeros_like(r)
+    predicted = torch.sqrt(n**2 + (r * sigma) ** 2)
+    cells = torch.ones_like(r, dtype=torch.bool)
+    sig = torch.full_like(r, sigma)
+    noise = torch.full((1, 1, 1, 1), n)
+    torch.testing.assert_close(sigma_factor(predicted, sig, measured, cells, noise=noise).flatten(), torch.tensor([0.6859]), rtol=0, atol=1e-4)
+    plain = sigma_factor(predicted, sig, measured, cells).flatten()
+    torch.testing.assert_close(plain, torch.quantile((predicted / sigma).flatten(), SIGMA_COVERAGE).view(1), rtol=0, atol=1e-5)
+    assert torch.equal(sigma_factor(predicted, sig, measured, cells, noise=torch.zeros(1, 1, 1, 1)), sigma_factor(predicted, sig, measured, cells))
+    quiet = sigma_factor(torch.full_like(r, 0.2), sig, measured, cells, noise=noise)  # every error within the noise
+    assert float(quiet) == 0.0
+
+
+def test_scan_noise_is_zero_on_planes_and_the_deviation_of_independent_noise():
+    """Second differences vanish on any plane, a wall's step included (it moves only the few
+    differences across it, not their median); on a plane with independent Gaussian noise of
+    0.05 and 0.2 m (every cell observed, or every other cell of a ring-like pattern) the
+    estimate is that deviation within 4 %; a map with no three observed cells in a line is 0."""
+    size = 121
+    r, c = torch.meshgrid(torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij")
+    plane = (0.3 * r - 0.2 * c + 5.0) * 0.25
+    wall = plane + 2.0 * (c > 60)
+    full = torch.ones(1, 1, size, size)
+    clean = scan_noise(torch.stack([plane, wall])[:, None], full.expand(2, -1, -1, -1)).flatten()
+    torch.testing.assert_close(clean, torch.zeros(2), rtol=0, atol=1e-5)
+    g = torch.Generator().manual_seed(4)
+    rings = ((r.long() // 3) % 2 == 0).float()[None, None]  # three rows observed, three not
+    for deviation in (0.05, 0.2):
+        noisy = plane + deviation * torch.randn(size, size, generator=g)
+        for mask in (full, rings):
+            estimate = float(scan_noise((noisy * mask[0, 0])[None, None], mask))
+            assert abs(estimate / deviation - 1.0) < 0.04, (deviation, estimate)
+    dots = ((r.long() % 2 == 0) & (c.long() % 2 == 0)).float()[None, None]
+    assert float(scan_noise(plane[None, None] * dots, dots)) == 0.0
+    assert float(scan_noise(plane[None, None] * 0, torch.zeros(1, 1, size, size))) == 0.0
+
+
+def test_check_sigma_on_a_noisy_scan_covers_the_ground_not_the_noise(monkeypatch):
+    """A plane scanned with 0.1 m noise, a 'net' that adds nothing and claims sigma = 1 m: the
+    checked errors hold the noise of the hidden measurements; taken out (``scan_noise``), 60-75 %
+    of the unobserved cells' errors against the true plane lie within 1 sigma; left in, the sigma
+    is the noise's and covers far more."""
+    size = 64
+    r, c = torch.meshgrid(torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij")
+    truth = (0.02 * r - 0.01 * c - 1.8)[None, None].repeat(4, 1, 1, 1)
+    g = torch.Generator().manual_seed(3)
+    mask = (torch.rand(4, 1, size, size, generator=g) < 0.5).float()
+    scan = (truth + 0.1 * torch.randn(truth.shape, generator=g)) * mask
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, base_fill="plane_biharmonic", height_reference="plane", uncertainty=True)
+    generator = FillResidualGenerator(Constant(0.0, 0.0), base="plane_biharmonic", reference="plane")
+    rec = Reconstructor(generator, cfg, device="cpu", tta=False, self_check=True, check_reach=True, check_sigma=True)
+    unobserved = mask == 0
+
+    def coverage():
+        height, sigma = rec.predict_maps_with_uncertainty(scan, mask)
+        return float(((height - truth).abs() <= sigma)[unobserved].float().mean()), float(sigma[unobserved].mean())
+
+    covered, sigma = coverage()
+    assert 0.60 <= covered <= 0.75
+    monkeypatch.setattr(reconstructor_module, "scan_noise", lambda scan, mask: torch.zeros(scan.shape[0], 1, 1, 1))
+    covered_with_noise, sigma_with_noise = coverage()
+    assert covered_with_noise > 0.85 and sigma_with_noise > 1.4 * sigma
 
 
 class Constant(torch.nn.Module):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from functools import partial
 from importlib import resources
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import THIN_PLATE_ONLY, Regimes, checked_maps, hidden_cells, outer_cells, sigma_factor
+from .selfcheck import THIN_PLATE_ONLY, Regimes, checked_maps, hidden_cells, outer_cells, scan_noise, sigma_factor
 
 PRETRAINED = "reconstructor.pt"
 
@@ -57,7 +58,9 @@ class Reconstructor:
     The uncertainty is multiplied by ``meta["sigma_scale"]`` (1 if absent): a factor fitted on
     validation pairs when the model is packaged (:func:`~warp_terrain.evaluation.calibrate.fit_sigma_scale`).
     With ``check_sigma`` (and the self-check) each map's sigma is instead scaled on its own scan:
-    by the factor that puts 68 % of the check's hidden cells within 1 sigma (``selfcheck.sigma_factor``).
+    by the factor that puts 68 % of the check's hidden cells within 1 sigma (``selfcheck.sigma_factor``),
+    the measured heights' own noise taken out (``selfcheck.scan_noise``): the sigma is about the
+    ground, not about the scan's noise.
     """
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
@@ -148,7 +151,9 @@ class Reconstructor:
         with ``check_keep_far`` to the whole correction.
         With ``check_sigma`` the sigma of each map is scaled so that 68 % of the checked cells'
         errors (the thinned scan's map, blended as the full one is) lie within 1 sigma: the
-        factor of the random cells near the scan, that of the outer cells far from it (with the reach).
+        factor of the random cells near the scan, that of the outer cells far from it (with the reach);
+        each checked error less the scan's own noise (``scan_noise``), which the hidden
+        measurements carry and the ground does not.
 
         Computed in ``torch.inference_mode`` (one map with the check: about 10 ms less than under
         ``no_grad`` on this CPU) and returned as plain tensors, which the caller may update in place."""
@@ -173,7 +178,8 @@ class Reconstructor:
                                               self.check_keep_far)
         sigma = None if sigmas is None else sigmas[:n]
         if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see, per regime
-            sigma = sigma * regimes.at(regimes.measure(sigma_factor, height_thinned, sigmas[n:], scan), mask)
+            factor = partial(sigma_factor, noise=scan_noise(scan, mask))  # sigma is about the ground, not the scan's noise
+            sigma = sigma * regimes.at(regimes.measure(factor, height_thinned, sigmas[n:], scan), mask)
         return height, sigma
 
     @property

@@ -195,16 +195,55 @@ SIGMA_MIN_CELLS = 16
 
 
 def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.Tensor, cells: torch.Tensor,
-                 coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS) -> torch.Tensor:
+                 coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS, noise: torch.Tensor | None = None) -> torch.Tensor:
     """(B, 1, 1, 1): per map, the factor ``k`` that puts ``coverage`` of the check's ``cells``
     within ``k sigma``: the ``coverage`` quantile of ``|predicted - measured| / sigma`` there.
     The check's cells are real measurements the map did not see, so ``k sigma`` means on this
     scan what it says (about 68 % of errors within 1 sigma), whatever ground the model was
     trained on; a quantile, not a mean of squares, so a few wild cells (a wall) do not inflate it.
-    Maps with fewer than ``min_cells`` cells keep ``k = 1``."""
-    ratio = ((predicted - measured).abs() / sigma.clamp_min(1e-6)).float()
+    Maps with fewer than ``min_cells`` cells keep ``k = 1``.
+
+    A measured height errs itself (``noise``, (B, 1, 1, 1) metres: the scan's own noise,
+    :func:`scan_noise`), so the checked error ``d = e - n`` of a cell holds the map's error ``e``
+    and the measurement's ``n``; sigma is about ``e``, the error against the ground. With
+    ``noise`` each cell's ratio is ``sqrt(max(d^2 - noise^2, 0)) / sigma``: for Gaussian ``e`` and
+    ``n`` the share of cells under ``k`` is then the share of ``|e| <= k sigma`` (``|d| <= sqrt(k^2
+    sigma^2 + noise^2)``), so a noisy scan no longer widens the sigma by its own noise."""
+    error = (predicted - measured).abs()
+    if noise is not None:
+        error = (error.square() - noise.square()).clamp_min(0.0).sqrt()
+    ratio = (error / sigma.clamp_min(1e-6)).float()
     ratio = torch.where(cells, ratio, torch.nan).flatten(1)
     k = torch.nanquantile(ratio, coverage, dim=1)
     enough = cells.flatten(1).sum(dim=1) >= min_cells
     k = torch.where(enough & torch.isfinite(k), k, torch.ones_like(k))
     return k.view(-1, 1, 1, 1).to(sigma.dtype)
+
+
+def scan_noise(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(B, 1, 1, 1) metres: each map's per-cell measurement noise, estimated from the scan alone.
+
+    The second difference ``z[i-1] - 2 z[i] + z[i+1]`` of three observed cells in a row or a
+    column is zero on any plane, so on ground smooth at the cell's scale it is the noise's own:
+    for independent noise of standard deviation ``s`` its variance is ``6 s^2``. The estimate is
+    the robust one, ``1.4826 median|second difference| / sqrt(6)`` over both directions (the
+    median shrugs off the steps of walls and pit edges); 0 for a map with no three observed
+    cells in a line. What it cannot see is error that neighbouring cells share (a bias of the
+    projection along a ring): it errs low, which leaves the sigma wider, never narrower."""
+    observed = mask > 0
+    diffs = []
+    for dim in (2, 3):
+        length = scan.shape[dim] - 2
+        if length < 1:
+            continue
+        a, b, c = (scan.narrow(dim, i, length) for i in range(3))
+        both = observed.narrow(dim, 0, length) & observed.narrow(dim, 1, length) & observed.narrow(dim, 2, length)
+        diffs.append(torch.where(both, (a - 2.0 * b + c).abs().float(), torch.nan).flatten(1))
+    if not diffs:
+        return scan.new_zeros(scan.shape[0], 1, 1, 1)
+    median = torch.nanmedian(torch.cat(diffs, dim=1), dim=1).values.nan_to_num(0.0)
+    return (NOISE_MAD * median / 6.0**0.5).view(-1, 1, 1, 1).to(scan.dtype)
+
+
+#: A Gaussian's standard deviation over its median absolute deviation.
+NOISE_MAD = 1.4826

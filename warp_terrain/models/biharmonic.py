@@ -79,9 +79,10 @@ def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension:
     no branch, so a batch runs the same ops for every map (and exports as a plain graph).
 
     Run as TorchScript (:func:`_scripted_cg`, the same ops in the same order: bit-identical),
-    except while tracing for ONNX export, which gets the unrolled eager loop: a small map's
-    solve is bound by the cost of launching its ops, which the interpreter halves."""
-    if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
+    except while tracing (ONNX export) or under ``torch.compile``, which get the eager loop to
+    unroll: a small map's solve is bound by the cost of launching its ops, which the
+    interpreter cuts by about a third."""
+    if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export() or torch.compiler.is_compiling():
         return _eager_cg(u, free, steps, tension, k2)
     if isinstance(tension, torch.Tensor):
         return _scripted_cg(u, free, steps, 1.0 - tension, tension, float(k2), MIXED)

@@ -29,8 +29,8 @@ convolution, a pooling, an interpolation or an elementwise op with a fixed count
 batched on the device, differentiable (not needed: it has no parameters) and exports to ONNX
 (the loops unroll). Outside export the CG loop runs as TorchScript, the same ops bit for bit:
 a small map's solve costs the launches of its ops, not their arithmetic, and the interpreter
-launches them faster (the check's six-map solve: min 22.5 -> 15.6 ms, tools/probes/cg_script_ab.py). A map with no
-observed cell comes back as zeros.
+launches them faster (the check's six-map solve: min 22.5 -> 15.6 ms on two threads,
+``tools/probes/cg_script_ab.py``). A map with no observed cell comes back as zeros.
 """
 
 from __future__ import annotations
@@ -108,12 +108,12 @@ def _scripted_laplacian(u: torch.Tensor) -> torch.Tensor:
 def _scripted_operator(u: torch.Tensor, a: torch.Tensor, t: torch.Tensor, k2: float, kind: int) -> torch.Tensor:
     """:func:`_operator` with ``a = 1 - t`` given: the same ops in the same order."""
     lap = _scripted_laplacian(u)
-    if kind == 0:
+    if kind == 0:  # MEMBRANE (TorchScript reads no module globals)
         return -lap
     out = _scripted_laplacian(lap)
     if k2 > 0:
         out = out - 2.0 * k2 * lap + (k2 * k2) * u
-    if kind == 1:
+    if kind == 1:  # THIN_PLATE
         return out
     return a * out - t * lap
 

@@ -220,6 +220,10 @@ def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.T
     return k.view(-1, 1, 1, 1).to(sigma.dtype)
 
 
+#: A Gaussian's standard deviation over its median absolute deviation.
+NOISE_MAD = 1.4826
+
+
 def scan_noise(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """(B, 1, 1, 1) metres: each map's per-cell measurement noise, estimated from the scan alone.
 
@@ -229,7 +233,9 @@ def scan_noise(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     the robust one, ``1.4826 median|second difference| / sqrt(6)`` over both directions (the
     median shrugs off the steps of walls and pit edges); 0 for a map with no three observed
     cells in a line. What it cannot see is error that neighbouring cells share (a bias of the
-    projection along a ring): it errs low, which leaves the sigma wider, never narrower."""
+    projection along a ring): on the real suite's clean scans it is 0.3-0.6 of the scan's true
+    error, so it errs low, which leaves the sigma wider rather than narrower; ground rough at the
+    cell's own scale adds its curvature to the estimate."""
     observed = mask > 0
     diffs = []
     for dim in (2, 3):
@@ -243,7 +249,3 @@ def scan_noise(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         return scan.new_zeros(scan.shape[0], 1, 1, 1)
     median = torch.nanmedian(torch.cat(diffs, dim=1), dim=1).values.nan_to_num(0.0)
     return (NOISE_MAD * median / 6.0**0.5).view(-1, 1, 1, 1).to(scan.dtype)
-
-
-#: A Gaussian's standard deviation over its median absolute deviation.
-NOISE_MAD = 1.4826

@@ -1,0 +1,56 @@
+"""On the real suite's scans (20 % of observed cells hidden, 3 draws, as `evaluate --real`): each
+model's net alone and checked, scored on the hidden cells, and the weight the self-check gives
+the net's correction next to the scan (median and mean over maps). No orientation average.
+
+    python tools/probes/scan_check_weights.py NAME=MODEL ...
+
+MODEL: a checkpoint or a Reconstructor file, or `shipped`; every model is checked as the shipped
+file is (reach, membrane, keep-far, sigma). Needs `make real-data`.
+"""
+
+import sys
+from pathlib import Path
+
+import torch
+
+from warp_terrain.evaluation.real import MAP, REAL_SEED_BASE, SCAN_FAMILIES, scan_family_set
+from warp_terrain.inference.reconstructor import Reconstructor
+from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS, Regimes, best_fill, hidden_cells, outer_cells, pick
+
+
+def load(path: str) -> Reconstructor:
+    rec = Reconstructor.load(None if path == "shipped" else path, device="cpu", tta=False, self_check=True, check_reach=True,
+                             check_sigma=True, check_keep_far=True)
+    rec.check_tensions = CANDIDATE_TENSIONS
+    return rec
+
+
+def near_weight(rec: Reconstructor, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(net's maps of the full scans, the check's near weight per map), as ``checked_maps`` weighs."""
+    hidden, outer = hidden_cells(mask), outer_cells(mask)
+    hidden = hidden & ~outer
+    thinned = mask * (~(hidden | outer)).to(mask.dtype)
+    n = scan.shape[0]
+    heights, _, fills = rec._predict(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), rec.check_tensions)
+    regimes = Regimes(hidden, outer)
+    fill = pick(fills[:-1, n:], best_fill(fills[:-1, n:], scan, hidden))
+    fill = regimes.apply(regimes.weight(fills[-1, n:], fill, scan), fill, fills[-1, n:], thinned)
+    return heights[:n], regimes.weight(heights[n:], fill, scan)[0].flatten()
+
+
+def main(args: list[str]) -> None:
+    torch.set_num_threads(1)
+    models = {name: load(path) for name, path in (arg.split("=", 1) for arg in args)}
+    for i, family in enumerate(SCAN_FAMILIES):
+        ss = scan_family_set(family, Path("real_data"), 3, MAP.size, MAP.cell, REAL_SEED_BASE + 100 + i)
+        for name, rec in models.items():
+            with torch.inference_mode():
+                net, w = near_weight(rec, ss.scan, ss.mask)
+                checked, _ = rec._predict_checked(ss.scan, ss.mask)
+            rmse = [float((m - ss.measured)[ss.hidden].square().mean().sqrt()) for m in (net, checked)]
+            print(f"{family.name[:34]:<34} {name:<6} near weight median {w.median():.2f} mean {w.mean():.2f} | "
+                  f"hidden-cell RMSE net alone {rmse[0]:.4f} m, checked {rmse[1]:.4f} m", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -7,7 +7,7 @@ import torch
 from conftest import TINY_RUN, run_config, tiny_sim
 from scipy import ndimage
 
-from warp_terrain.data.scans import ScanMixConfig, ScanPairs, hide_cells
+from warp_terrain.data.scans import ScanMixConfig, ScanPairs, hide_cells, load_scan
 from warp_terrain.data.stream import PairStream
 from warp_terrain.models.fill import fill_relative_weight
 
@@ -162,3 +162,15 @@ def test_the_scan_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_re
     assert tuned.terrain == shipped.terrain and tuned.data == shipped.data
     tuned.model.lr_g = shipped.model.lr_g
     assert tuned.model == shipped.model
+
+
+def test_a_scan_file_without_points_is_refused_before_any_work(tmp_path):
+    """``load_scan`` (the training sweeps and the real suite): an empty or malformed ``points``
+    array, or none, is named with the file."""
+    _write_scan(tmp_path / "empty.npz", np.zeros((0, 3)))
+    _write_scan(tmp_path / "flat.npz", np.zeros((5, 2)))
+    np.savez(tmp_path / "other.npz", xyz=np.zeros((5, 3)))
+    for name, message in (("empty", "N >= 1"), ("flat", "points must be"), ("other", "no 'points' array")):
+        with pytest.raises(ValueError, match=message) as err:
+            load_scan(tmp_path / f"{name}.npz")
+        assert f"{name}.npz" in str(err.value)

@@ -15,7 +15,7 @@ import torch
 
 from warp_terrain.evaluation.real import MAP, REAL_SEED_BASE, SCAN_FAMILIES, scan_family_set
 from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS, Regimes, best_fill, hidden_cells, outer_cells, pick
+from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS, Regimes, checked_fills, hidden_cells, outer_cells
 
 
 def load(path: str) -> Reconstructor:
@@ -33,8 +33,7 @@ def near_weight(rec: Reconstructor, scan: torch.Tensor, mask: torch.Tensor) -> t
     n = scan.shape[0]
     heights, _, fills = rec._predict(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), rec.check_tensions)
     regimes = Regimes(hidden, outer)
-    fill = pick(fills[:-1, n:], best_fill(fills[:-1, n:], scan, hidden))
-    fill = regimes.apply(regimes.weight(fills[-1, n:], fill, scan), fill, fills[-1, n:], thinned)
+    _, fill = checked_fills(fills, scan, mask, thinned, regimes, rec.check_membrane)
     return heights[:n], regimes.weight(heights[n:], fill, scan)[0].flatten()
 
 

@@ -35,7 +35,7 @@ def load_scan(path: Path) -> np.ndarray:
         if "points" not in data:
             raise ValueError(f"{str(path)!r}: no 'points' array (not a make real-data scan file)")
         points = np.asarray(data["points"], dtype=np.float64)
-    require(points.ndim == 2 and points.shape[1] == 3, str(path), points.shape, "points must be (N, 3)")
+    require(points.ndim == 2 and points.shape[1] == 3 and len(points) > 0, str(path), points.shape, "points must be (N, 3), N >= 1")
     return points
 
 

@@ -143,6 +143,20 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
     to that fill is then kept in the share the same cells support; with ``keep_far`` (and the
     reach) in full far from the scan, whatever the outer cells say."""
     n = scan.shape[0]
+    fill, fill_thinned = checked_fills(fills, scan, mask, thinned, regimes, membrane)
+    w = regimes.weight(model[n:], fill_thinned, scan)
+    if keep_far and w[1] is not None:
+        w = (w[0], torch.ones_like(w[1]))
+    return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
+
+
+def checked_fills(fills: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor, regimes: Regimes,
+                  membrane: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(fill, thinned fill)``: the classical fill :func:`checked_maps` weighs the net's
+    correction against, of the full scans and of the thinned ones (``fills`` as there): the
+    smooth candidate that errs least on the hidden cells, with ``membrane`` moved towards the
+    membrane by the share the check's cells support."""
+    n = scan.shape[0]
     smooth = fills[:-1] if membrane else fills
     choice = best_fill(smooth[:, n:], scan, regimes.hidden)
     fill, fill_thinned = pick(smooth[:, :n], choice), pick(smooth[:, n:], choice)
@@ -150,10 +164,7 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
         beta = regimes.weight(fills[-1, n:], fill_thinned, scan)
         fill = regimes.apply(beta, fill, fills[-1, :n], mask)
         fill_thinned = regimes.apply(beta, fill_thinned, fills[-1, n:], thinned)
-    w = regimes.weight(model[n:], fill_thinned, scan)
-    if keep_far and w[1] is not None:
-        w = (w[0], torch.ones_like(w[1]))
-    return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
+    return fill, fill_thinned
 
 
 def far_share(mask: torch.Tensor, near: int = REACH_NEAR, far: int = REACH_FAR) -> torch.Tensor:

@@ -152,6 +152,29 @@ def test_fill_relative_weights_are_the_inverse_base_error_normalised():
 
 
 
+def test_fill_relative_weights_by_the_median_ignore_a_few_deep_cells():
+    """``statistic="median"``: a map whose fill is 2 cm off on most unobserved cells and metres off
+    in two (a pit) weighs as a 2 cm map, where the mean would weigh it as a 0.71 m one; a map
+    without unobserved cells gets its floor; an unknown statistic is refused by name."""
+    mask = torch.ones(3, 1, 4, 4)
+    mask[:2, 0, 0, :] = 0.0
+    mask[:2, 0, 1, 0] = 0.0  # maps 0 and 1: five unobserved cells; map 2: none
+    target = torch.zeros(3, 1, 4, 4)
+    base = target.clone()
+    base[0, 0, 0, :] = torch.tensor([0.02, -0.02, 1.5, -2.0])
+    base[0, 0, 1, 0] = 0.02  # errors 0.02 x3, 1.5, 2.0: median 0.02, mean 0.712
+    base[1] = 0.1  # every cell 0.1 m off: median = mean = 0.1
+    base[0, 0, 3, 3] = 9.0  # an observed cell: never counted
+    median = fill_relative_weight(base, target, mask, floor=0.01, statistic="median").flatten()
+    inverse = torch.tensor([50.0, 10.0, 100.0])
+    torch.testing.assert_close(median, inverse / inverse.mean(), rtol=1e-5, atol=0)
+    mean = fill_relative_weight(base, target, mask, floor=0.01).flatten()
+    inverse = torch.tensor([1 / 0.712, 10.0, 100.0])
+    torch.testing.assert_close(mean, inverse / inverse.mean(), rtol=1e-5, atol=0)
+    with pytest.raises(ValueError, match="'mode'.*mean, median"):
+        fill_relative_weight(base, target, mask, floor=0.01, statistic="mode")
+
+
 def test_fill_relative_weights_for_a_squared_loss_are_the_inverse_mean_squared_errors():
     """``power=2``: 1 / the base fill's mean squared error on the unobserved cells, normalised
     (and the floor squared): a map whose cells err by 0.1 and 0.3 m weighs 1 / 0.05, not 1 / 0.2."""

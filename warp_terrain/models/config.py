@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 
 from ..core.checks import require
-from .fill import BASE_FILLS, HEIGHT_REFERENCES
+from .fill import BASE_FILLS, FILL_ERROR_STATISTICS, HEIGHT_REFERENCES
 
 GENERATORS = ("paper", "unet")
 NORMS = ("batch", "instance", "none")
@@ -85,6 +85,10 @@ class ModelConfig:
     # cells (at least 1 cm; with height_loss="l2" by 1 / its mean squared error), so the net
     # learns to improve on the fill on every map, not only on the maps where the fill errs by metres
     fill_relative_loss: bool = False
+    # with fill_relative_loss: the base fill's error a map's loss is divided by, the "mean" of its
+    # unobserved cells' errors or their "median" (pits and ditches, a few cells erring by metres,
+    # then do not make a map count less)
+    fill_relative_statistic: str = "mean"
     # residual only: the net's last layer starts at zero, so the untrained model is the base fill
     # exactly and training only adds what improves on it
     start_from_fill: bool = False
@@ -123,6 +127,8 @@ class ModelConfig:
                 self.relief_relative_loss, "needs residual=true and height_scale_min > 0 (the spread's floor)")
         require(not self.fill_relative_loss or self.residual, "fill_relative_loss", self.fill_relative_loss,
                 "needs residual=true (only a residual generator has a fill to compare with)")
+        require(self.fill_relative_statistic in FILL_ERROR_STATISTICS, "fill_relative_statistic", self.fill_relative_statistic,
+                f"expected one of {', '.join(FILL_ERROR_STATISTICS)}")
         require(not self.start_from_fill or self.residual, "start_from_fill", self.start_from_fill,
                 "needs residual=true (only a residual generator has a fill to start from)")
         require(not self.residual or self.in_channels == 2, "residual", self.residual,

@@ -226,8 +226,13 @@ def loss_weight_map(scan: torch.Tensor, mask: torch.Tensor, unobserved_weight: f
     return inverse.expand_as(mask) if weight is None else weight * inverse
 
 
+#: How a map's base-fill error is summed up for its loss weight: the mean over its unobserved cells,
+#: or their median (a few deep cells, the inside of a pit, do not make a map count less)
+FILL_ERROR_STATISTICS = ("mean", "median")
+
+
 def fill_relative_weight(base: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, floor: float, power: int = 1,
-                         valid: torch.Tensor | None = None) -> torch.Tensor:
+                         valid: torch.Tensor | None = None, statistic: str = "mean") -> torch.Tensor:
     """(B, 1, 1, 1) per-map loss weights ``1 / e`` normalised to a batch mean of 1, where ``e``
     is the base fill's mean absolute error on the map's unobserved cells (at least ``floor``
     metres), or with ``power=2`` (a squared-error loss) its mean squared error there (at least
@@ -235,9 +240,19 @@ def fill_relative_weight(base: torch.Tensor, target: torch.Tensor, mask: torch.T
     leaves, so a map the fill already gets nearly right weighs as much as a hard one, and a
     correction that helps the hard maps cannot buy that with damage to the easy ones. ``valid``
     (B, 1, H, W), where given: the cells whose target is known (a real scan's returns); ``e`` is
-    then taken over the unobserved cells among them."""
+    then taken over the unobserved cells among them. With ``statistic="median"`` ``e`` is the
+    median of those cells' errors instead of their mean: a map whose fill is close everywhere but
+    in a few cells (pits and ditches the sensor cannot see into, 2-5 % of the unobserved cells, err
+    by metres) keeps the weight of its ground, and those cells the weight of their error, where the
+    mean would count the whole map a few times less. A map with no such cell: ``e`` = its floor."""
+    if statistic not in FILL_ERROR_STATISTICS:
+        raise ValueError(f"fill error statistic {statistic!r}: expected one of {', '.join(FILL_ERROR_STATISTICS)}")
     unobserved = 1.0 - mask if valid is None else (1.0 - mask) * valid
     error = (base - target).abs() ** power
-    error = (error * unobserved).sum(dim=(2, 3), keepdim=True) / unobserved.sum(dim=(2, 3), keepdim=True).clamp_min(1.0)
+    if statistic == "median":
+        cells = torch.where(unobserved > 0, error, torch.nan).flatten(1)
+        error = torch.nanmedian(cells, dim=1).values.nan_to_num(0.0).view(-1, 1, 1, 1)
+    else:
+        error = (error * unobserved).sum(dim=(2, 3), keepdim=True) / unobserved.sum(dim=(2, 3), keepdim=True).clamp_min(1.0)
     inverse = 1.0 / error.clamp_min(floor**power)
     return inverse / inverse.mean()

@@ -281,7 +281,8 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
     valid = batch.get("valid")  # with real scans mixed in: where the target is known
     if cfg.model.fill_relative_loss:
         base = model.generator.base_fill(batch["scan"], batch["mask"])
-        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR, height_loss_power(cfg.model.height_loss), valid)
+        per_map = fill_relative_weight(base, batch["target"], batch["mask"], FILL_ERROR_FLOOR, height_loss_power(cfg.model.height_loss), valid,
+                                       cfg.model.fill_relative_statistic)
         weight = per_map.expand_as(batch["mask"]) if weight is None else weight * per_map
     if valid is not None:
         weight = valid if weight is None else weight * valid

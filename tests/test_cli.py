@@ -152,6 +152,17 @@ def test_every_subcommand_is_in_the_help():
         assert name in help_text
 
 
+def test_the_evaluate_help_names_every_baseline():
+    """``--baselines`` lists the fills it accepts: every one of ``BASELINES`` (the harmonic fill was
+    once accepted but not listed)."""
+    from warp_terrain.evaluation.baselines import BASELINES
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices["evaluate"]
+    listed = next(a for a in sub._actions if a.dest == "baselines").help.split("subset of ")[1].split(",")
+    assert [name.split(" ")[0] for name in listed[: len(BASELINES)]] == list(BASELINES)
+
+
 def test_write_map_round_trip(tmp_path):
     g = MapGeometry(5, 0.5)
     result = {"height": np.arange(25, dtype=np.float32).reshape(5, 5), "mask": np.ones((5, 5), np.float32),

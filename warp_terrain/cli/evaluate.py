@@ -35,7 +35,7 @@ def add_evaluate(sub) -> None:
     p.add_argument("--size", type=_positive_int, default=None, metavar="N", help="samples per setting (default: 64; 4 with --quick)")
     p.add_argument("--quick", action="store_true", help="a handful of samples per setting: a smoke test, not a measurement")
     p.add_argument("--baselines", type=_baseline_names, default=None, metavar="NAMES",
-                   help="comma-separated subset of nearest,linear,biharmonic,telea,ns,plane, or none (default: all)")
+                   help="comma-separated subset of nearest,linear,biharmonic,harmonic,telea,ns,plane, or none (default: all)")
     p.add_argument("--lidar", default="hdl32e", metavar="NAME", help="LIDAR preset (default: hdl32e)")
     p.add_argument("--json", action="store_true", help="print the results as JSON on stdout (progress goes to stderr)")
     p.add_argument("--markdown", default=None, metavar="FILE", help="also write the tables as Markdown to FILE")

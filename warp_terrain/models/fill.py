@@ -241,10 +241,11 @@ def fill_relative_weight(base: torch.Tensor, target: torch.Tensor, mask: torch.T
     correction that helps the hard maps cannot buy that with damage to the easy ones. ``valid``
     (B, 1, H, W), where given: the cells whose target is known (a real scan's returns); ``e`` is
     then taken over the unobserved cells among them. With ``statistic="median"`` ``e`` is the
-    median of those cells' errors instead of their mean: a map whose fill is close everywhere but
-    in a few cells (pits and ditches the sensor cannot see into, 2-5 % of the unobserved cells, err
-    by metres) keeps the weight of its ground, and those cells the weight of their error, where the
-    mean would count the whole map a few times less. A map with no such cell: ``e`` = its floor."""
+    median of those cells' errors (the lower middle value of an even count) instead of their mean:
+    a map whose fill is close everywhere but in a few cells (pits and ditches the sensor cannot see
+    into, a few per cent of the unobserved cells, err by metres) keeps the weight of its ground,
+    and those cells the weight of their error, where the mean would count the whole map a few
+    times less. A map without unobserved cells: ``e`` = the floor."""
     if statistic not in FILL_ERROR_STATISTICS:
         raise ValueError(f"fill error statistic {statistic!r}: expected one of {', '.join(FILL_ERROR_STATISTICS)}")
     unobserved = 1.0 - mask if valid is None else (1.0 - mask) * valid

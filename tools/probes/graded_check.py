@@ -7,8 +7,13 @@ blocks beyond, then ramped to the whole correction far from the scan as shipped.
 
 usage: THREADS=1 python tools/probes/graded_check.py --fills-cache outputs/fills_cache.json \
            D12_check_reach_keepfar_sigma_membrane_graded12=shipped
+
+``CHECK_SEED=N`` in the environment draws every check's cells (the shipped one's too) from seed N
+instead of ``selfcheck.CHECK_SEED``: another draw of the same check, to tell a change from the
+draw's own noise.
 """
 
+import os
 import re
 
 import torch
@@ -19,12 +24,13 @@ import warp_terrain.inference.selfcheck as check
 
 PROBE: dict = {}
 BLOCK = 3
+SEED = int(os.environ.get("CHECK_SEED", check.CHECK_SEED))
 
 
 def parts(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(single cells, block cells) of the check, disjoint, each about ``PROBE["share"]``."""
     share = PROBE["share"]
-    generator = torch.Generator(device="cpu").manual_seed(check.CHECK_SEED)
+    generator = torch.Generator(device="cpu").manual_seed(SEED)
     draw = torch.rand(mask.shape, generator=generator)
     seeds = (torch.rand(mask.shape, generator=generator) < share / BLOCK**2).to(torch.float32)
     blocks = (torch.nn.functional.max_pool2d(seeds, BLOCK, stride=1, padding=BLOCK // 2) > 0).to(mask.device) & (mask > 0)
@@ -32,9 +38,9 @@ def parts(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return singles, blocks
 
 
-def hidden_cells(mask, share=check.CHECK_SHARE, seed=check.CHECK_SEED):
+def hidden_cells(mask, share=check.CHECK_SHARE, seed=None):
     if "share" not in PROBE:
-        return check.hidden_cells(mask, share, seed)
+        return check.hidden_cells(mask, share, SEED if seed is None else seed)
     singles, blocks = parts(mask)
     return singles | blocks
 

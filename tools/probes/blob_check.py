@@ -13,16 +13,17 @@ import re
 import torch
 from common import run
 
-import warp_terrain.inference.reconstructor as reconstructor
 import warp_terrain.inference.selfcheck as check
 
 PROBE: dict = {}
+#: the shipped draw, kept before ``check.hidden_cells`` is replaced
+PLAIN_HIDDEN = check.hidden_cells
 
 
 def hidden_cells(mask: torch.Tensor, share: float = check.CHECK_SHARE, seed: int = check.CHECK_SEED) -> torch.Tensor:
     size = PROBE.get("blob")
     if not size:
-        return check.hidden_cells(mask, share, seed)
+        return PLAIN_HIDDEN(mask, share, seed)
     generator = torch.Generator(device="cpu").manual_seed(seed)
     seeds = (torch.rand(mask.shape, generator=generator) < share / size**2).to(torch.float32)
     blobs = torch.nn.functional.max_pool2d(seeds, size, stride=1, padding=size // 2)[..., : mask.shape[-2], : mask.shape[-1]]
@@ -35,5 +36,5 @@ def settings_of(name: str) -> dict:
 
 
 if __name__ == "__main__":
-    reconstructor.hidden_cells = hidden_cells
+    check.hidden_cells = hidden_cells  # what selfcheck.check_cells draws
     run(settings_of, PROBE)

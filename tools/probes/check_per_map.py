@@ -10,21 +10,18 @@ maps' RMSE within 8 cells of the scan and beyond. No orientation average.
 import sys
 
 import torch
+from common import load_checked
 
 from warp_terrain.evaluation.testsets import make_eval_set
-from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS, Regimes, best_fill, far_share, hidden_cells, outer_cells, pick
+from warp_terrain.inference.selfcheck import Regimes, best_fill, check_cells, far_share, pick
 
 
 def main(setting: str, noise: str, size: str = "16") -> None:
     torch.set_num_threads(2)
     ts = make_eval_set(setting, float(noise), size=int(size), device="cpu")
-    rec = Reconstructor.load(None, device="cpu", tta=False, self_check=True)
-    rec.check_tensions = CANDIDATE_TENSIONS
+    rec = load_checked("shipped", tta=False)
     scan, mask, n = ts.scan, ts.mask, ts.scan.shape[0]
-    hidden, outer = hidden_cells(mask), outer_cells(mask)
-    hidden = hidden & ~outer
-    thinned = mask * (~(hidden | outer)).to(mask.dtype)
+    hidden, outer, thinned = check_cells(mask)
     with torch.inference_mode():
         heights, _, fills = rec._predict(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), rec.check_tensions)
         checked, _ = rec._predict_checked(scan, mask)

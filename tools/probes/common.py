@@ -8,6 +8,18 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import real_ablation  # noqa: E402
 
+from warp_terrain.inference.reconstructor import Reconstructor  # noqa: E402
+from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS  # noqa: E402
+
+
+def load_checked(path: str, tta: bool = True, self_check: bool = True) -> Reconstructor:
+    """A checkpoint or Reconstructor file (``shipped``: the packaged one) checked as the shipped
+    file is: reach, membrane, keep-far and sigma (with ``self_check=False``: not checked)."""
+    rec = Reconstructor.load(None if path == "shipped" else path, device="cpu", tta=tta, self_check=self_check, check_reach=True,
+                             check_sigma=True, check_keep_far=True)
+    rec.check_tensions = CANDIDATE_TENSIONS
+    return rec
+
 
 def run(settings_of, active: dict) -> None:
     """``settings_of(name) -> dict``; ``active`` is cleared and filled with them around each call."""

@@ -23,6 +23,8 @@ import warp_terrain.inference.reconstructor as reconstructor
 import warp_terrain.inference.selfcheck as check
 
 PROBE: dict = {}
+#: the shipped draw, kept before ``check.hidden_cells`` is replaced
+PLAIN_HIDDEN = check.hidden_cells
 BLOCK = 3
 SEED = int(os.environ.get("CHECK_SEED", check.CHECK_SEED))
 
@@ -40,7 +42,7 @@ def parts(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 def hidden_cells(mask, share=check.CHECK_SHARE, seed=None):
     if "share" not in PROBE:
-        return check.hidden_cells(mask, share, SEED if seed is None else seed)
+        return PLAIN_HIDDEN(mask, share, SEED if seed is None else seed)
     singles, blocks = parts(mask)
     return singles | blocks
 
@@ -75,6 +77,6 @@ def settings_of(name: str) -> dict:
 
 
 if __name__ == "__main__":
-    reconstructor.hidden_cells = hidden_cells
+    check.hidden_cells = hidden_cells  # what selfcheck.check_cells draws
     reconstructor.checked_maps = checked_maps
     run(settings_of, PROBE)

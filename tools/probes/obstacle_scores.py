@@ -12,22 +12,14 @@ above / below the bare ground), where a fill that does not see into a pit errs h
 import argparse
 
 import torch
+from common import load_checked
 
 from warp_terrain.evaluation.baselines import BASELINES
 from warp_terrain.evaluation.metrics import OBSTACLE_THRESHOLD, masked_rmse, obstacle_iou, pit_recall
 from warp_terrain.evaluation.testsets import make_eval_set
-from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS
 
 SETTINGS = ("flat_cylinders", "negative_obstacles")
 NOISES = (0.0, 0.1)
-
-
-def load(path: str, checked: bool) -> Reconstructor:
-    rec = Reconstructor.load(None if path == "shipped" else path, device="cpu", self_check=checked, check_reach=True,
-                             check_sigma=True, check_keep_far=True)
-    rec.check_tensions = CANDIDATE_TENSIONS
-    return rec
 
 
 def scores(pred: torch.Tensor, ts, setting: str) -> str:
@@ -56,7 +48,7 @@ def main() -> None:
                 name, path = arg.split("=", 1)
                 for checked in (True, False):
                     with torch.inference_mode():
-                        pred = load(path, checked).predict_maps(ts.scan, ts.mask).float()
+                        pred = load_checked(path, self_check=checked).predict_maps(ts.scan, ts.mask).float()
                     label = f"{name}{'' if checked else ' unchecked'}"
                     print(f"{setting}/{noise} {label:18s} {scores(pred, ts, setting)}", flush=True)
 

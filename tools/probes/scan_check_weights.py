@@ -12,24 +12,16 @@ import sys
 from pathlib import Path
 
 import torch
+from common import load_checked
 
 from warp_terrain.evaluation.real import MAP, REAL_SEED_BASE, SCAN_FAMILIES, scan_family_set
 from warp_terrain.inference.reconstructor import Reconstructor
-from warp_terrain.inference.selfcheck import CANDIDATE_TENSIONS, Regimes, checked_fills, hidden_cells, outer_cells
-
-
-def load(path: str) -> Reconstructor:
-    rec = Reconstructor.load(None if path == "shipped" else path, device="cpu", tta=False, self_check=True, check_reach=True,
-                             check_sigma=True, check_keep_far=True)
-    rec.check_tensions = CANDIDATE_TENSIONS
-    return rec
+from warp_terrain.inference.selfcheck import Regimes, check_cells, checked_fills
 
 
 def near_weight(rec: Reconstructor, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(net's maps of the full scans, the check's near weight per map), as ``checked_maps`` weighs."""
-    hidden, outer = hidden_cells(mask), outer_cells(mask)
-    hidden = hidden & ~outer
-    thinned = mask * (~(hidden | outer)).to(mask.dtype)
+    hidden, outer, thinned = check_cells(mask)
     n = scan.shape[0]
     heights, _, fills = rec._predict(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), rec.check_tensions)
     regimes = Regimes(hidden, outer)
@@ -39,7 +31,7 @@ def near_weight(rec: Reconstructor, scan: torch.Tensor, mask: torch.Tensor) -> t
 
 def main(args: list[str]) -> None:
     torch.set_num_threads(1)
-    models = {name: load(path) for name, path in (arg.split("=", 1) for arg in args)}
+    models = {name: load_checked(path, tta=False) for name, path in (arg.split("=", 1) for arg in args)}
     for i, family in enumerate(SCAN_FAMILIES):
         ss = scan_family_set(family, Path("real_data"), 3, MAP.size, MAP.cell, REAL_SEED_BASE + 100 + i)
         for name, rec in models.items():

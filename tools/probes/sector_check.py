@@ -11,7 +11,7 @@ import re
 import torch
 from common import run
 
-import warp_terrain.inference.reconstructor as reconstructor
+import warp_terrain.inference.selfcheck as check
 
 SECTORS: dict = {}
 
@@ -34,5 +34,5 @@ def settings_of(name: str) -> dict:
 
 
 if __name__ == "__main__":
-    reconstructor.outer_cells = sector_cells
+    check.outer_cells = sector_cells  # what selfcheck.check_cells hides for the reach
     run(settings_of, SECTORS)

@@ -17,7 +17,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import THIN_PLATE_ONLY, Regimes, checked_maps, hidden_cells, outer_cells, scan_noise, sigma_factor
+from .selfcheck import THIN_PLATE_ONLY, Regimes, check_cells, checked_maps, scan_noise, sigma_factor
 
 PRETRAINED = "reconstructor.pt"
 
@@ -166,10 +166,7 @@ class Reconstructor:
         """``predict_maps_with_uncertainty`` of inputs on the model's device, without grad."""
         if not self.self_check:
             return self._predict(scan, mask)[:2]
-        hidden = hidden_cells(mask)
-        outer = outer_cells(mask) if self.check_reach else torch.zeros_like(hidden)
-        hidden = hidden & ~outer
-        thinned = mask * (~(hidden | outer)).to(mask.dtype)  # one pass answers both checks
+        hidden, outer, thinned = check_cells(mask, self.check_reach)  # one pass answers both checks
         # the scan and its thinned copy go through the net, and their classical fills through one solve, together
         n = scan.shape[0]
         both_scans, both_masks = torch.cat([scan, scan * thinned]), torch.cat([mask, thinned])

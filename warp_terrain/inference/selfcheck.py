@@ -60,6 +60,16 @@ def hidden_cells(mask: torch.Tensor, share: float = CHECK_SHARE, seed: int = CHE
     return (mask > 0) & (draw < share)
 
 
+def check_cells(mask: torch.Tensor, reach: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(hidden, outer, thinned)`` of a check: the random cells (:func:`hidden_cells`, outside the
+    outer ones), with ``reach`` the outermost observed cells (:func:`outer_cells`; else none),
+    and the mask with both hidden, which one pass of the model answers both checks on."""
+    hidden = hidden_cells(mask)
+    outer = outer_cells(mask) if reach else torch.zeros_like(hidden)
+    hidden = hidden & ~outer
+    return hidden, outer, mask * (~(hidden | outer)).to(mask.dtype)
+
+
 def correction_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
     """(B, 1, 1, 1) least-squares weight of ``model - fill`` against ``measured - fill`` on the
     ``hidden`` cells, clamped to [0, 1] (0 where the correction is zero on them)."""

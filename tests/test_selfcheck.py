@@ -36,6 +36,15 @@ def test_hidden_cells_are_a_fixed_share_of_the_observed_ones():
     assert abs(share - CHECK_SHARE) < 0.01
 
 
+def test_a_maps_hidden_cells_do_not_depend_on_its_batch():
+    masks = (torch.rand(5, 1, 121, 121, generator=torch.Generator().manual_seed(2)) < 0.4).float()
+    together = hidden_cells(masks)
+    for i in range(5):  # alone, or anywhere in another batch: the same cells
+        assert torch.equal(hidden_cells(masks[i:i + 1]), together[i:i + 1])
+    assert torch.equal(hidden_cells(masks.flip(0)), together.flip(0))
+    assert torch.equal(hidden_cells(masks[:, 0]), together[:, 0])  # (B, S, S) masks too
+
+
 def test_correction_weight_is_the_least_squares_share_clamped():
     fill = torch.zeros(4, 1, 8, 8)
     d = torch.randn(4, 1, 8, 8, generator=torch.Generator().manual_seed(2))
@@ -194,6 +203,22 @@ def test_the_shipped_model_checks_itself_near_and_far_from_the_scan():
     assert not Reconstructor.load(device="cpu", check_keep_far=False).check_keep_far
     assert not Reconstructor.load(device="cpu", self_check=False).self_check
     assert not Reconstructor.load(device="cpu", check_reach=False).check_reach
+
+
+def test_the_shipped_models_checked_map_does_not_depend_on_its_batch():
+    """The check's cells, fills and weights are per map: a map predicted alone equals the same
+    map predicted among others, to float rounding."""
+    shipped = Reconstructor.load(device="cpu", tta=False)
+    g = torch.Generator().manual_seed(3)
+    size = 48
+    r, c = torch.meshgrid(torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij")
+    tilt = torch.rand(3, 2, 1, 1, generator=g) - 0.5
+    truth = (0.05 * tilt[:, :1] * r + 0.05 * tilt[:, 1:] * c + 0.3 * torch.sin(0.2 * r) * torch.cos(0.15 * c))[:, :1]
+    mask = (torch.rand(3, 1, size, size, generator=g) < 0.3).float()
+    together = shipped.predict_maps(truth * mask, mask)
+    for i in range(3):
+        alone = shipped.predict_maps(truth[i:i + 1] * mask[i:i + 1], mask[i:i + 1])
+        torch.testing.assert_close(alone, together[i:i + 1], rtol=0, atol=1e-4)
 
 
 def test_far_share_is_the_chessboard_distance_ramp():

@@ -25,7 +25,7 @@ def hidden_cells(mask: torch.Tensor, share: float = check.CHECK_SHARE, seed: int
     if not size:
         return PLAIN_HIDDEN(mask, share, seed)
     generator = torch.Generator(device="cpu").manual_seed(seed)
-    seeds = (torch.rand(mask.shape, generator=generator) < share / size**2).to(torch.float32)
+    seeds = (torch.rand((1, 1, *mask.shape[-2:]), generator=generator) < share / size**2).to(torch.float32)
     blobs = torch.nn.functional.max_pool2d(seeds, size, stride=1, padding=size // 2)[..., : mask.shape[-2], : mask.shape[-1]]
     return (mask > 0) & (blobs.to(mask.device) > 0)
 

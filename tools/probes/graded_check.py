@@ -33,8 +33,8 @@ def parts(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(single cells, block cells) of the check, disjoint, each about ``PROBE["share"]``."""
     share = PROBE["share"]
     generator = torch.Generator(device="cpu").manual_seed(SEED)
-    draw = torch.rand(mask.shape, generator=generator)
-    seeds = (torch.rand(mask.shape, generator=generator) < share / BLOCK**2).to(torch.float32)
+    draw = torch.rand(mask.shape[-2:], generator=generator)
+    seeds = (torch.rand((1, 1, *mask.shape[-2:]), generator=generator) < share / BLOCK**2).to(torch.float32)
     blocks = (torch.nn.functional.max_pool2d(seeds, BLOCK, stride=1, padding=BLOCK // 2) > 0).to(mask.device) & (mask > 0)
     singles = (mask > 0) & (draw.to(mask.device) < share) & ~blocks
     return singles, blocks

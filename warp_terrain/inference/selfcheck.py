@@ -54,9 +54,12 @@ REACH_FAR = 8
 
 
 def hidden_cells(mask: torch.Tensor, share: float = CHECK_SHARE, seed: int = CHECK_SEED) -> torch.Tensor:
-    """(B, 1, S, S) bool: about ``share`` of each map's observed cells, drawn from ``seed``."""
+    """(B, 1, S, S) bool: about ``share`` of each map's observed cells, drawn from ``seed``.
+
+    One field of the map's size is drawn and laid over every map of the batch, so a map's check
+    (and so its checked prediction) is the same whatever batch it comes in and wherever in it."""
     generator = torch.Generator(device="cpu").manual_seed(seed)
-    draw = torch.rand(mask.shape, generator=generator).to(mask.device)
+    draw = torch.rand(mask.shape[-2:], generator=generator).to(mask.device)
     return (mask > 0) & (draw < share)
 
 

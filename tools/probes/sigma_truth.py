@@ -6,7 +6,11 @@ from the scan and once from the scan with its observed cells replaced by the tru
 prints per set: the scan's own RMSE on observed cells and the noise ``scan_noise`` estimates,
 each run's share of unobserved cells within 1 sigma, and the median sigma factor.
 
-usage: python tools/probes/sigma_truth.py [--size N] [--notta]
+``--walls`` prints instead, per synthetic setting, the observed cells whose measured height is
+more than 0.3 m off the true one (a pit's far wall, a cylinder's side): their share, their share
+of the scan's squared error on observed cells, and how they err (no model).
+
+usage: python tools/probes/sigma_truth.py [--size N] [--notta] [--walls]
 """
 
 import argparse
@@ -42,11 +46,27 @@ def coverage(rec, scan, mask, target):
     return float(within), float(rmse), float(torch.cat(FACTORS).median())
 
 
+def walls(size: int) -> None:
+    for terrain in ("negative_obstacles", "flat_cylinders", "octave3"):
+        ts = make_eval_set(terrain, 0.0, size=size, device="cpu")
+        error = (ts.scan - ts.target)[ts.mask > 0]
+        off = error.abs() > 0.3
+        if not bool(off.any()):
+            print(f"{terrain}: no observed cell more than 0.3 m off")
+            continue
+        print(f"{terrain}: {int(off.sum())} of {error.numel()} observed cells ({float(off.float().mean()):.2%}) more than 0.3 m off, "
+              f"{float((error[off] ** 2).sum() / (error ** 2).sum()):.0%} of the squared error; "
+              f"{float((error[off] > 0).float().mean()):.0%} of them above the truth, by {float(error[off].mean()):+.2f} m on average")
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", type=int, default=32)
     parser.add_argument("--notta", action="store_true")
+    parser.add_argument("--walls", action="store_true")
     args = parser.parse_args()
+    if args.walls:
+        return walls(args.size)
     reconstructor.sigma_factor = recording
     rec = load_checked("shipped", tta=not args.notta)
     sets = [(f"{t}/noise{n}", make_eval_set(t, n, size=args.size, device="cpu"))

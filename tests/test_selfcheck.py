@@ -14,6 +14,7 @@ from warp_terrain.inference.selfcheck import (
     REACH_NEAR,
     SIGMA_COVERAGE,
     SIGMA_MIN_CELLS,
+    SIGMA_RESOLUTION,
     best_fill,
     correction_weight,
     far_share,
@@ -427,7 +428,27 @@ def test_sigma_factor_takes_the_measurements_own_noise_out_of_the_checked_errors
     torch.testing.assert_close(plain, torch.quantile((predicted / sigma).flatten(), SIGMA_COVERAGE).view(1), rtol=0, atol=1e-5)
     assert torch.equal(sigma_factor(predicted, sig, measured, cells, noise=torch.zeros(1, 1, 1, 1)), sigma_factor(predicted, sig, measured, cells))
     quiet = sigma_factor(torch.full_like(r, 0.2), sig, measured, cells, noise=noise)  # every error within the noise
-    assert float(quiet) == 0.0
+    assert float(quiet) == 1.0  # nothing the check can resolve: the file's own sigma
+
+
+def test_sigma_factor_keeps_the_files_sigma_where_the_noise_hides_the_maps_error():
+    """100 checked cells with noise n = 0.3 m: the checked errors' quantile must stand
+    SIGMA_RESOLUTION standard errors (n / sqrt(100) each) above n for the check to measure the
+    map's error; 1.1 n does not (k = 1, not the near-zero sqrt(1.21 - 1) n / sigma it would give),
+    1.3 n does (k = sqrt(1.69 - 1) n / sigma exactly); without a noise every error is measured."""
+    assert SIGMA_RESOLUTION == 2.0
+    n, sigma = 0.3, 0.5
+    measured = torch.zeros(2, 1, 10, 10)
+    predicted = torch.cat([torch.full((1, 1, 10, 10), 1.1 * n), torch.full((1, 1, 10, 10), 1.3 * n)])
+    cells = torch.ones_like(measured, dtype=torch.bool)
+    sig = torch.full_like(measured, sigma)
+    k = sigma_factor(predicted, sig, measured, cells, noise=torch.full((2, 1, 1, 1), n)).flatten()
+    torch.testing.assert_close(k, torch.tensor([1.0, 0.69**0.5 * n / sigma]), rtol=0, atol=1e-5)
+    torch.testing.assert_close(sigma_factor(predicted, sig, measured, cells).flatten(), torch.tensor([1.1, 1.3]) * n / sigma)
+    fewer = cells.clone()
+    fewer[:, :, 5:] = False
+    fewer[:, :, :, 5:] = False  # 25 cells: the quantile errs more, 1.3 n no longer stands out (1 + 2 / sqrt(25) = 1.4)
+    assert torch.equal(sigma_factor(predicted, sig, measured, fewer, noise=torch.full((2, 1, 1, 1), n)).flatten(), torch.ones(2))
 
 
 def test_scan_noise_is_zero_on_planes_and_the_deviation_of_independent_noise():

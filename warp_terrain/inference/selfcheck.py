@@ -216,10 +216,15 @@ def outer_cells(mask: torch.Tensor, share: float = OUTER_SHARE) -> torch.Tensor:
 SIGMA_COVERAGE = 0.6827
 #: Fewest hidden cells a map needs for its own sigma factor; below it the factor is 1.
 SIGMA_MIN_CELLS = 16
+#: Standard errors by which the checked errors' quantile must stand above the scan's noise for
+#: the check to resolve the map's own error (the quantile's relative standard error is about
+#: ``1 / sqrt(cells)`` for Gaussian errors); below that the factor is 1.
+SIGMA_RESOLUTION = 2.0
 
 
 def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.Tensor, cells: torch.Tensor,
-                 coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS, noise: torch.Tensor | None = None) -> torch.Tensor:
+                 coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS, noise: torch.Tensor | None = None,
+                 resolution: float = SIGMA_RESOLUTION) -> torch.Tensor:
     """(B, 1, 1, 1): per map, the factor ``k`` that puts ``coverage`` of the check's ``cells``
     within ``k sigma``: the ``coverage`` quantile of ``|predicted - measured| / sigma`` there.
     The check's cells are real measurements the map did not see, so ``k sigma`` means on this
@@ -232,15 +237,25 @@ def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.T
     and the measurement's ``n``; sigma is about ``e``, the error against the ground. With
     ``noise`` each cell's ratio is ``sqrt(max(d^2 - noise^2, 0)) / sigma``: for Gaussian ``e`` and
     ``n`` the share of cells under ``k`` is then the share of ``|e| <= k sigma`` (``|d| <= sqrt(k^2
-    sigma^2 + noise^2)``), so a noisy scan no longer widens the sigma by its own noise."""
-    error = (predicted - measured).abs()
-    if noise is not None:
-        error = (error.square() - noise.square()).clamp_min(0.0).sqrt()
+    sigma^2 + noise^2)``), so a noisy scan no longer widens the sigma by its own noise.
+
+    Under the noise the check cannot see the map's error: where the checked errors' ``coverage``
+    quantile stands less than ``resolution`` of its own standard errors (``1 / sqrt(cells)`` of
+    it) above ``noise``, the map's error is indistinguishable from zero and ``k`` would be 0 or
+    near it by chance (on noisy scans a third of the maps, each then almost never within its
+    sigma); such a map keeps ``k = 1``, the file's own calibration, as a map with too few cells."""
+    checked = (predicted - measured).abs()
+    error = checked if noise is None else (checked.square() - noise.square()).clamp_min(0.0).sqrt()
     ratio = (error / sigma.clamp_min(1e-6)).float()
     ratio = torch.where(cells, ratio, torch.nan).flatten(1)
     k = torch.nanquantile(ratio, coverage, dim=1)
-    enough = cells.flatten(1).sum(dim=1) >= min_cells
-    k = torch.where(enough & torch.isfinite(k), k, torch.ones_like(k))
+    count = cells.flatten(1).sum(dim=1)
+    usable = (count >= min_cells) & torch.isfinite(k)
+    if noise is not None:
+        quantile = torch.nanquantile(torch.where(cells, checked, torch.nan).float().flatten(1), coverage, dim=1)
+        floor = noise.flatten().float() * (1.0 + resolution / count.clamp_min(1).float().sqrt())
+        usable &= (noise.flatten() <= 0) | (quantile > floor)
+    k = torch.where(usable, k, torch.ones_like(k))
     return k.view(-1, 1, 1, 1).to(sigma.dtype)
 
 

@@ -10,7 +10,11 @@ each run's share of unobserved cells within 1 sigma, and the median sigma factor
 more than 0.3 m off the true one (a pit's far wall, a cylinder's side): their share, their share
 of the scan's squared error on observed cells, and how they err (no model).
 
-usage: python tools/probes/sigma_truth.py [--size N] [--notta] [--walls]
+``--no-resolution`` measures every map's factor, as stops 31-32 did, even where the checked errors
+do not stand out of the scan's noise (``selfcheck.SIGMA_RESOLUTION``; with the rule such a map
+keeps k = 1, and with true heights in almost every map is such a map).
+
+usage: python tools/probes/sigma_truth.py [--size N] [--notta] [--walls] [--no-resolution]
 """
 
 import argparse
@@ -26,8 +30,11 @@ from warp_terrain.inference.selfcheck import scan_noise, sigma_factor
 FACTORS: list[torch.Tensor] = []
 
 
+RESOLUTION: dict = {}
+
+
 def recording(*args, **kwargs):
-    k = sigma_factor(*args, **kwargs)
+    k = sigma_factor(*args, **kwargs, **RESOLUTION)
     FACTORS.append(k.flatten())
     return k
 
@@ -64,7 +71,10 @@ def main():
     parser.add_argument("--size", type=int, default=32)
     parser.add_argument("--notta", action="store_true")
     parser.add_argument("--walls", action="store_true")
+    parser.add_argument("--no-resolution", action="store_true")
     args = parser.parse_args()
+    if args.no_resolution:
+        RESOLUTION["resolution"] = float("-inf")
     if args.walls:
         return walls(args.size)
     reconstructor.sigma_factor = recording

@@ -242,8 +242,9 @@ def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.T
     Under the noise the check cannot see the map's error: where the checked errors' ``coverage``
     quantile stands less than ``resolution`` of its own standard errors (``1 / sqrt(cells)`` of
     it) above ``noise``, the map's error is indistinguishable from zero and ``k`` would be 0 or
-    near it by chance (on noisy scans a third of the maps, each then almost never within its
-    sigma); such a map keeps ``k = 1``, the file's own calibration, as a map with too few cells."""
+    near it by chance (on noisy scans a third of the maps, each then with under 40 % of its errors
+    within its sigma); such a map keeps ``k = 1``, the file's own calibration, as a map with too
+    few cells does."""
     checked = (predicted - measured).abs()
     error = checked if noise is None else (checked.square() - noise.square()).clamp_min(0.0).sqrt()
     ratio = (error / sigma.clamp_min(1e-6)).float()

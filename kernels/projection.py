@@ -62,6 +62,44 @@ def finish_maps(
 
 
 @wp.kernel
+def bin_offsets(
+    points: wp.array2d(dtype=wp.vec3),
+    map_cell: float,
+    offset_sum: wp.array4d(dtype=wp.float64),
+    count: wp.array3d(dtype=int),
+):
+    """Per cell, the sum of its points' horizontal offsets from the cell's centre (``offset_sum``
+    ``(B, 2, S, S)``: x then y) and their count; the cells of ``bin_points``."""
+    b, n = wp.tid()
+    p = points[b, n]
+    if not (wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2])):
+        return
+    S = count.shape[1]
+    half = 0.5 * float(S - 1)
+    fi = wp.floor(p[0] / map_cell + half + 0.5)
+    fj = wp.floor(p[1] / map_cell + half + 0.5)
+    if fi < 0.0 or fj < 0.0 or fi >= float(S) or fj >= float(S):
+        return
+    i = int(fi)
+    j = int(fj)
+    # the offset in float64: a point far from the sensor keeps its centimetres
+    wp.atomic_add(offset_sum, b, 0, i, j, wp.float64(p[0]) - wp.float64(fi - half) * wp.float64(map_cell))
+    wp.atomic_add(offset_sum, b, 1, i, j, wp.float64(p[1]) - wp.float64(fj - half) * wp.float64(map_cell))
+    wp.atomic_add(count, b, i, j, 1)
+
+
+@wp.kernel
+def finish_offsets(offset_sum: wp.array4d(dtype=wp.float64), count: wp.array3d(dtype=int), offset: wp.array4d(dtype=float)):
+    """Mean offset per observed cell, 0 where nothing landed."""
+    b, c, i, j = wp.tid()
+    n = count[b, i, j]
+    if n > 0:
+        offset[b, c, i, j] = float(offset_sum[b, c, i, j] / wp.float64(n))
+    else:
+        offset[b, c, i, j] = 0.0
+
+
+@wp.kernel
 def add_image_noise(
     seeds: wp.array(dtype=int),
     noise: float,

@@ -59,7 +59,7 @@ def reconstruct_bag(args, sources: list[Path], matrix) -> int:
         for path in planned:
             if path.exists():
                 raise ValueError(f"{str(path)!r}: exists; pass --overwrite to replace it")
-    rec = Reconstructor.load(args.model, device=args.device, tta=args.tta)
+    rec = Reconstructor.load(args.model, device=args.device, tta=args.tta, centre_cells=getattr(args, "centre_cells", None))
     geometry = MapGeometry(*rec.resolve_geometry(args.map_size, args.map_cell))
     folder.mkdir(exist_ok=True)  # every check passed: a refused run leaves no folder
     common = {"input": str(source), "topic": clouds.topic}

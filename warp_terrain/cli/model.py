@@ -48,6 +48,10 @@ def add_reconstruct(sub) -> None:
                    help="ROS bags: the PointCloud2 topic (needed when the bag has several; they are listed if not given)")
     p.add_argument("--every", type=_positive_int, default=None, metavar="N",
                    help="ROS bags: one map per Nth PointCloud2 message, from the first (default 1: every message)")
+    p.add_argument("--centre-cells", dest="centre_cells", action="store_true", default=None,
+                   help="move each cell's height from its returns' mean position to the cell's centre by the thin plate's "
+                        "gradient before the model sees it (1.5-4 %% lower error; the checked sigma then too narrow; "
+                        "default: as the model file says, off for the shipped model)")
     _add_model(p)
     _add_tta(p)
     _add_device(p)
@@ -185,7 +189,7 @@ def cmd_reconstruct(args) -> int:
                 sensor_pose(matrix)
             except ValueError as err:
                 raise ValueError(f"--transform {args.transform!r}: {str(err).removeprefix('transform: ')}") from None
-    rec = Reconstructor.load(args.model, device=args.device, tta=args.tta)
+    rec = Reconstructor.load(args.model, device=args.device, tta=args.tta, centre_cells=args.centre_cells)
     geometry = MapGeometry(*rec.resolve_geometry(args.map_size, args.map_cell))
     for folder in folders_to_make:  # every check passed: a refused run leaves no folder
         folder.mkdir(exist_ok=True)

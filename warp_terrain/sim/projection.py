@@ -49,16 +49,9 @@ def _real_points(points):
     return points
 
 
-def project_points(points, map_size: int = MAP_SIZE, map_cell: float = MAP_CELL, device=None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Bin sensor-frame points into ``(height, mask)`` elevation maps, each ``(batch, 1, S, S)``.
-
-    ``points``: ``(rays, 3)`` or ``(batch, rays, 3)``, torch or numpy. Point (x, y, z) lands in
-    cell ``(round(x / map_cell + (S-1)/2), round(y / map_cell + (S-1)/2))``; a cell's height is
-    the mean z of its points (0 where none landed) and its mask 1 where at least one did. Rows
-    with NaN/inf and points outside the map are ignored (float64 values beyond float32's range
-    count as inf); bool, complex or non-numeric points raise ValueError. ``device=None`` keeps a
-    tensor's device.
-    """
+def _checked_points(points, map_size: int, map_cell: float, device):
+    """``(points (batch, rays, 3), or None for no rays; batch; device)`` after the checks
+    ``project_points`` documents."""
     check_map(map_size, map_cell)
     points = _real_points(points)
     shape = tuple(points.shape)
@@ -70,13 +63,52 @@ def project_points(points, map_size: int = MAP_SIZE, map_cell: float = MAP_CELL,
     if device is None and isinstance(points, torch.Tensor):
         device = points.device.type if points.device.type == "cpu" else str(points.device)
     device = resolve_device(device)
-    batch, rays = shape[0], shape[1]
-    if rays == 0:
-        zeros = torch.zeros((batch, 1, map_size, map_size), device=device)
-        return zeros, zeros.clone()
+    if shape[1] == 0:
+        return None, shape[0], device
     if isinstance(points, torch.Tensor) and not points.is_floating_point():
         points = points.float()
-    with np.errstate(over="ignore"), torch_stream(device):  # float64 beyond float32's range -> inf: skipped like NaN
-        wp_points = to_warp(points, wp.vec3, device)
+    return points, shape[0], device
+
+
+def _to_warp(points, device: str) -> wp.array:
+    with np.errstate(over="ignore"):  # float64 beyond float32's range -> inf: skipped like NaN
+        return to_warp(points, wp.vec3, device)
+
+
+def project_points(points, map_size: int = MAP_SIZE, map_cell: float = MAP_CELL, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bin sensor-frame points into ``(height, mask)`` elevation maps, each ``(batch, 1, S, S)``.
+
+    ``points``: ``(rays, 3)`` or ``(batch, rays, 3)``, torch or numpy. Point (x, y, z) lands in
+    cell ``(round(x / map_cell + (S-1)/2), round(y / map_cell + (S-1)/2))``; a cell's height is
+    the mean z of its points (0 where none landed) and its mask 1 where at least one did. Rows
+    with NaN/inf and points outside the map are ignored (float64 values beyond float32's range
+    count as inf); bool, complex or non-numeric points raise ValueError. ``device=None`` keeps a
+    tensor's device.
+    """
+    points, batch, device = _checked_points(points, map_size, map_cell, device)
+    if points is None:
+        zeros = torch.zeros((batch, 1, map_size, map_size), device=device)
+        return zeros, zeros.clone()
+    with torch_stream(device):
+        wp_points = _to_warp(points, device)
         height, _top, mask = bin_into_maps(wp_points, int(map_size), float(map_cell), device)
     return wp.to_torch(height), wp.to_torch(mask)
+
+
+def cell_offsets(points, map_size: int = MAP_SIZE, map_cell: float = MAP_CELL, device=None) -> torch.Tensor:
+    """``(batch, 2, S, S)`` metres: the mean horizontal offset (x, then y) of each cell's points
+    from the cell's centre, 0 where none landed; the cells, checks and ignored rows of
+    :func:`project_points`. A cell's mean height is the ground's height where its points lie,
+    not at its centre: on a slope ``g`` it is off by ``g . offset`` (``models.centring``)."""
+    points, batch, device = _checked_points(points, map_size, map_cell, device)
+    if points is None:
+        return torch.zeros((batch, 2, map_size, map_size), device=device)
+    with torch_stream(device):
+        wp_points = _to_warp(points, device)
+        grid = (batch, int(map_size), int(map_size))
+        offset_sum = arena.zeros((batch, 2, *grid[1:]), wp.float64, device)
+        count = arena.zeros(grid, int, device)
+        wp.launch(projection_kernels.bin_offsets, dim=wp_points.shape, inputs=[wp_points, float(map_cell)], outputs=[offset_sum, count], device=device)
+        offset = arena.empty((batch, 2, *grid[1:]), float, device)
+        wp.launch(projection_kernels.finish_offsets, dim=offset.shape, inputs=[offset_sum, count], outputs=[offset], device=device)
+    return wp.to_torch(offset)

@@ -104,6 +104,23 @@ def test_random_offsets_on_a_plane_lose_most_of_their_error():
     assert errors[0] < 0.5 * raw and errors[2] < errors[1] < errors[0]
 
 
+def test_the_averaged_gradient_is_the_grounds_not_the_noises():
+    """A plane with 5 cm of noise on every observed height, seen 10 cm off-centre: the exact
+    correction is 0.3 x 0.1 = 3 cm everywhere. The thin plate's gradient between noisy cells is
+    the noise's; averaged over 2 m it is the plane's, to a fifth of the unaveraged error."""
+    mask = _mask(5, framed=False)
+    g = torch.Generator().manual_seed(5)
+    offset = torch.tensor([0.1, 0.0]).view(1, 2, 1, 1).expand(1, 2, S, S) * mask
+    scan = (_plane(0.3, -0.2, offset).float() + 0.05 * torch.randn(1, 1, S, S, generator=g)) * mask
+
+    def correction_error(span: float) -> float:
+        correction = (scan - centre_cells(scan, mask, offset, CELL, span=span))[mask > 0]
+        return float(((correction - 0.03) ** 2).mean().sqrt())
+
+    assert correction_error(2.0) < 0.25 * correction_error(0.0)
+    assert correction_error(2.0) < 0.003
+
+
 def test_bad_shapes_name_the_argument():
     scan = torch.zeros(1, 1, S, S)
     with pytest.raises(ValueError, match="offset"):
@@ -112,6 +129,8 @@ def test_bad_shapes_name_the_argument():
         centre_cells(scan[0], scan[0], torch.zeros(1, 2, S, S), CELL)
     with pytest.raises(ValueError, match="solves"):
         centre_cells(scan, scan, torch.zeros(1, 2, S, S), CELL, solves=0)
+    with pytest.raises(ValueError, match="span"):
+        centre_cells(scan, scan, torch.zeros(1, 2, S, S), CELL, span=-1.0)
 
 
 def _recording(tmp_path, **kwargs) -> tuple[Reconstructor, list]:

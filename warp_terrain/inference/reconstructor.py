@@ -64,11 +64,11 @@ class Reconstructor:
     ground, not about the scan's noise.
 
     ``centre_cells`` (off unless the file says so): a cloud's cells are moved from their returns'
-    mean position to their centres before the model sees them (``models.centring``): the
-    shipped model's unobserved-cell error is 1.5-4 % lower so on simulated scans of real and
-    synthetic ground, but the checked sigma, calibrated on mean heights, narrows too much
-    (README, "Transfer to real ground", stop 34). Only ``reconstruct*`` (from points) can do it:
-    a map alone does not say where its returns lay.
+    mean position to their centres before the model sees them (``models.centring``): on
+    simulated scans the shipped model's unobserved-cell error is 2-5 % lower so on clean smooth
+    ground and level on noisy scans and real sweeps, but the checked sigma, calibrated on mean
+    heights, narrows too much on smooth ground (README, "Transfer to real ground", stop 34).
+    Only ``reconstruct*`` (from points) can do it: a map alone does not say where its returns lay.
     """
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,

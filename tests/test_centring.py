@@ -169,3 +169,64 @@ def test_the_shipped_file_does_not_centre_and_the_command_line_can():
     assert parser.parse_args(["reconstruct", "cloud.ply"]).centre_cells is None
     assert parser.parse_args(["reconstruct", "cloud.ply", "--centre-cells"]).centre_cells is True
     assert wt.Reconstructor is Reconstructor
+
+
+def test_the_stream_carries_each_cells_offset_when_asked():
+    from conftest import tiny_sim
+
+    from warp_terrain.data.stream import PairStream, make_pair, validation_set
+
+    sim = tiny_sim()
+    plain = make_pair(sim, 2, 7, "cpu")
+    pair = make_pair(sim, 2, 7, "cpu", offsets=True)
+    assert "offset" not in plain and torch.equal(pair["scan"], plain["scan"])
+    points = wt.generate_batch(2, sim, seed=7, device="cpu").points
+    assert torch.equal(pair["offset"], cell_offsets(points, sim.data.map_size, sim.data.map_cell, device="cpu"))
+    assert bool((pair["offset"].abs().amax(dim=1, keepdim=True) > 0).le(pair["mask"] > 0).all())  # offsets only where returns are
+    assert validation_set(sim, 2, "cpu", offsets=True)["offset"].shape == (2, 2, sim.data.map_size, sim.data.map_size)
+    stream = iter(PairStream(sim, 2, 0, stop=1, offsets=True))
+    assert next(stream)["offset"].shape == (2, 2, sim.data.map_size, sim.data.map_size)
+
+
+def test_a_run_that_centres_refuses_pairs_without_points(tmp_path):
+    from conftest import TINY_RUN, run_config
+
+    with pytest.raises(ValueError, match="model.centre_cells=true.*train.dataset"):
+        run_config(*TINY_RUN, "model.centre_cells=true", f"train.dataset={tmp_path}")
+
+
+def test_a_run_that_centres_trains_on_centred_cells_and_its_file_centres_clouds(tmp_path, monkeypatch):
+    """Two steps through the loop: every training and validation scan it gives the model is the
+    centred scan of its pair; the checkpoint's Reconstructor centres a cloud's cells by default."""
+    from conftest import TINY_RUN, run_config
+
+    import warp_terrain.training.session as session
+    from warp_terrain.training import train
+
+    calls = []
+
+    def spying(scan, mask, offset, map_cell, **kwargs):
+        out = centre_cells(scan, mask, offset, map_cell, **kwargs)
+        calls.append(out)
+        return out
+
+    monkeypatch.setattr(session, "centre_cells", spying)
+    cfg = run_config(*TINY_RUN, "model.centre_cells=true", "train.steps=2", "train.val_every=2", "train.image_every=2",
+                     "train.checkpoint_every=2")
+    out = train(cfg, tmp_path / "run")
+    assert out["steps"] == 2 and np.isfinite(out["val_rmse_unobserved"])
+    assert len(calls) == 3  # the validation set once, then each step's batch
+    rec = Reconstructor.load(tmp_path / "run" / "checkpoints" / "latest.pt", device="cpu")
+    assert rec.centre_cells and not Reconstructor.load(tmp_path / "run" / "checkpoints" / "latest.pt", centre_cells=False).centre_cells
+
+
+def test_the_centred_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_centred_cells():
+    from warp_terrain.compose import compose_run
+
+    tuned = compose_run(["experiment=centred_finetune"], files=False)
+    shipped = compose_run(["experiment=pretrained"], files=False)
+    assert tuned.model.centre_cells and not shipped.model.centre_cells
+    assert tuned.train.init_from == "pretrained" and tuned.model.lr_g == 1e-4
+    assert tuned.terrain == shipped.terrain and tuned.data == shipped.data and tuned.scans == shipped.scans
+    tuned.model.lr_g, tuned.model.centre_cells = shipped.model.lr_g, False
+    assert tuned.model == shipped.model

@@ -9,6 +9,7 @@ A classical fill (``evaluation.baselines``) is any callable with the same signat
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 
 import torch
@@ -72,7 +73,12 @@ def _trained_sim(meta: dict) -> SimConfig | None:
 
 
 def reconstructor_predictor(rec: Reconstructor, chunk: int = 16, path=None) -> Predictor:
-    """A :class:`~warp_terrain.inference.reconstructor.Reconstructor` as a predictor."""
+    """A :class:`~warp_terrain.inference.reconstructor.Reconstructor` as a predictor. A predictor
+    sees maps, which do not say where their returns lay: a model that centres a cloud's cells
+    (``centre_cells``) is given the mean heights, with a warning."""
+    if rec.centre_cells:
+        warnings.warn("this model centres a cloud's cells (centre_cells), which maps alone do not allow: it is given "
+                      "their mean heights (tools/probes/cell_centre.py scores it on centred cells)", stacklevel=2)
 
     def predict(scan: torch.Tensor, mask: torch.Tensor) -> Output:
         outs = [rec.predict_maps_with_uncertainty(scan[i : i + chunk], mask[i : i + chunk]) for i in _chunks(scan.shape[0], chunk)]

@@ -100,8 +100,10 @@ class Reconstructor:
         # the plain fills the check weighs beside the base fill, by tension (thin plate 0, membrane 1):
         # as the model file says (``meta["check_tensions"]``); files from before the membrane: the thin plate only
         self.check_tensions = tuple(float(t) for t in self.meta.get("check_tensions", THIN_PLATE_ONLY))
-        # a cloud's cells moved to their centres before the model sees them (``reconstruct*`` only)
-        self.centre_cells = setting("centre_cells", centre_cells)
+        # a cloud's cells moved to their centres before the model sees them (``reconstruct*`` only):
+        # as the file says, else as the model was trained (``model.centre_cells``)
+        trained = bool(self.meta.get("centre_cells", getattr(model_config, "centre_cells", False)))
+        self.centre_cells = trained if centre_cells is None else bool(centre_cells)
 
     # -- files --------------------------------------------------------------------------------
     @classmethod

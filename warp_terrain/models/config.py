@@ -95,6 +95,10 @@ class ModelConfig:
     # the generator also predicts each cell's log-variance of its height error (a second output
     # channel, trained by the Gaussian NLL of the detached error: the height is learnt as without it)
     uncertainty: bool = False
+    # the net sees each observed cell's height moved from its returns' mean position to the cell's
+    # centre (models/centring.py; the stream then carries each cell's mean offset): an input of
+    # the run, not a layer, so a run may switch it on from weights trained without it
+    centre_cells: bool = False
 
     def validate(self) -> ModelConfig:
         """Raise ValueError naming the first bad field; return self so calls can chain."""

@@ -121,7 +121,19 @@ def validate_run(cfg: RunConfig, files: bool = True) -> RunConfig:
     _check_dem_mix(cfg, files)
     _check_capture(cfg)
     _check_scan_mix(cfg)
+    _check_centre_cells(cfg)
     return cfg
+
+
+def _check_centre_cells(cfg: RunConfig) -> None:
+    """A model that centres its input takes each cell's offset from the simulated points."""
+    if not cfg.model.centre_cells:
+        return
+    if cfg.train.dataset:
+        raise ValueError(f"model.centre_cells=true: needs each cell's points, which pairs read from disk "
+                         f"(train.dataset={cfg.train.dataset!r}) do not keep; train on the live stream")
+    if cfg.scans.enabled():
+        raise ValueError(f"model.centre_cells=true: real scans mixed in (scans.share={cfg.scans.share}) carry no offsets yet")
 
 
 def _check_scan_mix(cfg: RunConfig) -> None:

@@ -32,7 +32,8 @@ def train(cfg: RunConfig, run_dir: str | os.PathLike, callbacks: Sequence = ()) 
     tc = cfg.train
     run = session.setup(cfg, run_dir)
     batches = training_batches(run.sim, tc.batch_size, tc.seed, run.ranks.rank, run.start, tc.steps, run.device, tc.workers, tc.prefetch,
-                               dataset=tc.dataset, capture=tc.capture, scans=cfg.scans)
+                               dataset=tc.dataset, capture=tc.capture, scans=cfg.scans,
+                               offsets=cfg.model.centre_cells)
     bar = tqdm(total=tc.steps, initial=run.start, disable=not (tc.progress and run.ranks.main), desc="train", unit="step", dynamic_ncols=True)
     started = time.perf_counter()
     run.model.train()

@@ -37,6 +37,7 @@ from ..evaluation.baselines import nearest_fill
 from ..evaluation.metrics import calibration, masked_rmse
 from ..inference.reconstructor import Reconstructor
 from ..models import Pix2PixModel, build_generator, build_model
+from ..models.centring import centre_cells
 from ..models.config import GENERATOR_FIELDS
 from ..models.fill import fill_relative_weight, loss_weight_map, widen_to_screened_input
 from ..models.inputs import model_input
@@ -166,7 +167,9 @@ def setup(cfg: RunConfig, run_dir: str | os.PathLike) -> TrainingRun:
             logger.info("training from step 0 of %d (%s)", tc.steps, f"weights from {tc.init_from}" if initial is not None else "fresh weights")
         write_text(run_dir / "run_config.yaml", OmegaConf.to_yaml(OmegaConf.structured(cfg)))
 
-    val = validation_set(sim, tc.val_size if ranks.main else 1, device)
+    val = validation_set(sim, tc.val_size if ranks.main else 1, device, offsets=cfg.model.centre_cells)
+    if cfg.model.centre_cells:  # what the model will see of a cloud (``Reconstructor``)
+        val["scan"] = centre_cells(val["scan"], val["mask"], val.pop("offset"), cfg.data.map_cell)
     unobserved = val["mask"] == 0
     nn_rmse = masked_rmse(nearest_fill(val["scan"], val["mask"]), val["target"], unobserved)
     val_condition = model_input(val["scan"], val["mask"], cfg.model.in_channels)
@@ -277,6 +280,8 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
         for g in opt.param_groups:
             g["lr"] = run.base_lrs[id(opt)] * factor
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items() if k != "step"}
+    if "offset" in batch:  # model.centre_cells: the cells moved to their centres, as a cloud's are
+        batch["scan"] = centre_cells(batch["scan"], batch["mask"], batch.pop("offset"), cfg.data.map_cell)
     weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor, cfg.model.height_reference)
     valid = batch.get("valid")  # with real scans mixed in: where the target is known
     if cfg.model.fill_relative_loss:

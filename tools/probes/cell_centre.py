@@ -5,12 +5,13 @@ ground's). This probe corrects each observed cell by the thin plate's gradient t
 returns' mean offset from the centre (``sim.projection.cell_offsets``; the gradient clamped to
 ``--gmax``, averaged over ``--span`` metres, the thin plate solved ``--iters`` times, each on
 the last corrected heights) and prints, per set, the observed cells' RMSE, two classical fills'
-RMSE on unobserved cells, and the shipped checked model's RMSE and share within 1 sigma, from
-the mean heights and from the corrected ones (the 8-orientation average with ``--tta``). 32 maps per set: the evaluation's
+RMSE on unobserved cells, and the checked model's RMSE and share within 1 sigma (the shipped
+file, or ``--model``, checked as the shipped file is), from the mean heights and from the
+corrected ones (the 8-orientation average with ``--tta``). 32 maps per set: the evaluation's
 seeds for the synthetic settings, the real suite's for its DEM families without obstacles.
 ``--scans``: the real suite's real scans instead (``real_scans``).
 
-usage: python tools/probes/cell_centre.py [--size N] [--gmax G] [--iters K] [--span M] [--no-model] [--tta] [--noisy | --scans]
+usage: python tools/probes/cell_centre.py [--size N] [--gmax G] [--iters K] [--span M] [--no-model | --model PATH] [--tta] [--noisy | --scans]
 """
 
 import argparse
@@ -76,8 +77,9 @@ def main():
     parser.add_argument("--tta", action="store_true", help="the shipped 8-orientation average")
     parser.add_argument("--noisy", action="store_true", help="the synthetic settings with 0, 5 and 10 %% image noise instead")
     parser.add_argument("--scans", action="store_true", help="the real suite's real scans instead")
+    parser.add_argument("--model", default="shipped", help="a Reconstructor file or checkpoint, checked as the shipped file is")
     args = parser.parse_args()
-    rec = None if args.no_model else load_checked("shipped", tta=args.tta)
+    rec = None if args.no_model else load_checked(args.model, tta=args.tta)
     if args.scans:
         return real_scans(rec, args)
     print("| set | cell height | observed RMSE | thin plate | membrane | model | model within 1 sigma |")

@@ -193,6 +193,10 @@ def test_a_run_that_centres_refuses_pairs_without_points(tmp_path):
 
     with pytest.raises(ValueError, match="model.centre_cells=true.*train.dataset"):
         run_config(*TINY_RUN, "model.centre_cells=true", f"train.dataset={tmp_path}")
+    scan = tmp_path / "a.npz"
+    np.savez(scan, points=np.zeros((10, 3), np.float32))
+    with pytest.raises(ValueError, match="^model.centre_cells=true: real scans mixed in"):
+        run_config(*TINY_RUN, "model.gan_mode=none", "model.centre_cells=true", "scans.share=0.5", f"scans.files=[{scan}]")
 
 
 def test_a_run_that_centres_trains_on_centred_cells_and_its_file_centres_clouds(tmp_path, monkeypatch):

@@ -170,6 +170,7 @@ INVALID = {
     "model.screened_input": -0.1,
     "model.start_from_fill": "maybe",
     "model.fill_relative_loss": "maybe",
+    "model.centre_cells": "maybe",
     "model.fill_relative_statistic": "mode",
     "train.steps": 0,
     "train.batch_size": 0,

@@ -12,6 +12,21 @@ from .rng import STREAM_IMAGE_NOISE, stream_state
 wp.set_module_options({"enable_backward": False})  # forward only: nothing differentiates through the simulator
 
 
+@wp.func
+def map_cell_of(p: wp.vec3, map_cell: float, S: int) -> wp.vec2i:
+    """The map cell ``(i, j)`` point ``p`` falls in, or ``(-1, -1)`` for a non-finite point or
+    one outside the ``S x S`` map."""
+    if not (wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2])):
+        return wp.vec2i(-1, -1)
+    half = 0.5 * float(S - 1)
+    fi = wp.floor(p[0] / map_cell + half + 0.5)
+    fj = wp.floor(p[1] / map_cell + half + 0.5)
+    # compare as floats so that huge coordinates cannot overflow an int
+    if fi < 0.0 or fj < 0.0 or fi >= float(S) or fj >= float(S):
+        return wp.vec2i(-1, -1)
+    return wp.vec2i(int(fi), int(fj))
+
+
 @wp.kernel
 def bin_points(
     points: wp.array2d(dtype=wp.vec3),
@@ -22,17 +37,11 @@ def bin_points(
 ):
     b, n = wp.tid()
     p = points[b, n]
-    if not (wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2])):
+    cell = map_cell_of(p, map_cell, height_sum.shape[1])
+    if cell[0] < 0:
         return
-    S = height_sum.shape[1]
-    half = 0.5 * float(S - 1)
-    fi = wp.floor(p[0] / map_cell + half + 0.5)
-    fj = wp.floor(p[1] / map_cell + half + 0.5)
-    # compare as floats so that huge coordinates cannot overflow an int
-    if fi < 0.0 or fj < 0.0 or fi >= float(S) or fj >= float(S):
-        return
-    i = int(fi)
-    j = int(fj)
+    i = cell[0]
+    j = cell[1]
     wp.atomic_add(height_sum, b, i, j, wp.float64(p[2]))  # float64: no overflow, no drift
     wp.atomic_add(count, b, i, j, 1)
     wp.atomic_max(height_max, b, i, j, p[2])
@@ -69,22 +78,19 @@ def bin_offsets(
     count: wp.array3d(dtype=int),
 ):
     """Per cell, the sum of its points' horizontal offsets from the cell's centre (``offset_sum``
-    ``(B, 2, S, S)``: x then y) and their count; the cells of ``bin_points``."""
+    ``(B, 2, S, S)``: x then y) and their count; the cells of ``bin_points`` (``map_cell_of``)."""
     b, n = wp.tid()
     p = points[b, n]
-    if not (wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2])):
-        return
     S = count.shape[1]
-    half = 0.5 * float(S - 1)
-    fi = wp.floor(p[0] / map_cell + half + 0.5)
-    fj = wp.floor(p[1] / map_cell + half + 0.5)
-    if fi < 0.0 or fj < 0.0 or fi >= float(S) or fj >= float(S):
+    cell = map_cell_of(p, map_cell, S)
+    if cell[0] < 0:
         return
-    i = int(fi)
-    j = int(fj)
+    i = cell[0]
+    j = cell[1]
+    half = 0.5 * float(S - 1)
     # the offset in float64: a point far from the sensor keeps its centimetres
-    wp.atomic_add(offset_sum, b, 0, i, j, wp.float64(p[0]) - wp.float64(fi - half) * wp.float64(map_cell))
-    wp.atomic_add(offset_sum, b, 1, i, j, wp.float64(p[1]) - wp.float64(fj - half) * wp.float64(map_cell))
+    wp.atomic_add(offset_sum, b, 0, i, j, wp.float64(p[0]) - wp.float64(float(i) - half) * wp.float64(map_cell))
+    wp.atomic_add(offset_sum, b, 1, i, j, wp.float64(p[1]) - wp.float64(float(j) - half) * wp.float64(map_cell))
     wp.atomic_add(count, b, i, j, 1)
 
 

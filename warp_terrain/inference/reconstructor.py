@@ -102,7 +102,7 @@ class Reconstructor:
         self.check_tensions = tuple(float(t) for t in self.meta.get("check_tensions", THIN_PLATE_ONLY))
         # a cloud's cells moved to their centres before the model sees them (``reconstruct*`` only):
         # as the file says, else as the model was trained (``model.centre_cells``)
-        trained = bool(self.meta.get("centre_cells", getattr(model_config, "centre_cells", False)))
+        trained = bool(self.meta.get("centre_cells", model_config.centre_cells))
         self.centre_cells = trained if centre_cells is None else bool(centre_cells)
 
     # -- files --------------------------------------------------------------------------------

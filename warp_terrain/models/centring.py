@@ -11,10 +11,9 @@ defined between rings and in the holes too, averaged over ``span`` metres (a box
 plane's gradient is constant, so a plane stays exact), refitted ``solves`` times on the moved
 heights. Unaveraged, the gradient of a noisy scan is its noise's: on the evaluation's scans
 with 10 % image noise the moved heights then erred 8 % more than the mean heights, and the
-shipped model's maps 5 % more (``tools/probes/cell_centre.py --noisy --span 0``). The gradient's length is clamped at ``max_slope``: at a wall
-the thin plate's gradient is the step's, and a cell at a wall's foot holds returns of the wall,
-not of a slope.
-Pure torch, batched; the cost is the thin plate's solve (16 ms for one 121-cell map on this
+shipped model's maps 5 % more (``tools/probes/cell_centre.py --noisy --span 0``). The
+gradient's length is clamped at ``max_slope``: at a wall the thin plate's gradient is the
+step's, and a cell at a wall's foot holds returns of the wall, not of a slope. Pure torch, batched; the cost is the thin plate's solve (16 ms for one 121-cell map on this
 CPU's one thread).
 """
 

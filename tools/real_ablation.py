@@ -15,6 +15,7 @@ usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL 
 """
 
 import argparse
+import hashlib
 import json
 import os
 
@@ -126,6 +127,8 @@ def main() -> None:
                 json.dump({"real": {e["family"]: {k: v for k, v in e["metrics"].items() if k in fills} for e in real["families"]},
                            "synthetic": {k: {m: v for m, v in row.items() if m in fills} for k, row in synthetic.items()}}, f)
     names = "_".join(a.split("=")[0] for a in args.models) or "fills"
+    if len(names) > 120:  # a file name has at most 255 bytes: long lists keep their start and a digest
+        names = f"{names[:100]}_{hashlib.sha1(names.encode()).hexdigest()[:12]}"
     with open(os.path.join(os.path.dirname(__file__), f"real_ablation_{names}.json"), "w") as f:
         json.dump({"real": real, "synthetic": synthetic}, f)
     report(real, synthetic, list(nets))

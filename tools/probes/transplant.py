@@ -10,7 +10,7 @@ correction, one candidate weighed as a whole. Here the net's own correction ``c 
 - ``_sel``: per map, whichever of the shipped blend and ``_tp``'s errs less on the hidden cells
   (near and far alike, one choice per map);
 - ``_joint``: ``fill + a (model - fill) + b c``, ``(a, b)`` the least-squares pair on the hidden
-  cells, each clamped to [0, 1];
+  cells within [0, 1]^2;
 
 each with the shipped reach (near / far weights, the correction kept whole far from the scan).
 Without a token the check is the shipped one.
@@ -31,15 +31,32 @@ PROBE: dict = {}
 
 
 def joint_weights(x1, x2, r, cells):
-    """(B,1,1,1) pair ``(a, b)``: least squares of ``r`` on ``x1``, ``x2`` over ``cells``, each clamped to [0, 1]."""
+    """(B,1,1,1) pair ``(a, b)`` in [0, 1]^2 minimising ``|r - a x1 - b x2|^2`` over ``cells``: the
+    unconstrained least squares if it lies in the box, else the best point on the box's edges
+    (each edge a one-dimensional least squares, clamped)."""
     h = cells.to(r.dtype)
     s = lambda u, v: (u * v * h).sum(dim=(2, 3), keepdim=True)  # noqa: E731
     a11, a12, a22, b1, b2 = s(x1, x1), s(x1, x2), s(x2, x2), s(x1, r), s(x2, r)
     det = a11 * a22 - a12 * a12
-    ok = det > 1e-12 * (a11 * a22).clamp_min(1e-30)
-    a = torch.where(ok, (b1 * a22 - b2 * a12) / det.clamp_min(1e-30), torch.zeros_like(det))
-    b = torch.where(ok, (a11 * b2 - a12 * b1) / det.clamp_min(1e-30), torch.zeros_like(det))
-    return a.clamp(0, 1), b.clamp(0, 1)
+    q = lambda a, b: a * a * a11 + 2 * a * b * a12 + b * b * a22 - 2 * a * b1 - 2 * b * b2  # noqa: E731
+    safe = lambda num, den: torch.where(den > 0, num / den.clamp_min(1e-30), torch.zeros_like(num)).clamp(0, 1)  # noqa: E731
+    zero, one = torch.zeros_like(a11), torch.ones_like(a11)
+    candidates = [
+        (zero, safe(b2, a22)),
+        (one, safe(b2 - a12, a22)),
+        (safe(b1, a11), zero),
+        (safe(b1 - a12, a11), one),
+    ]
+    inside_a = torch.where(det > 0, (b1 * a22 - b2 * a12) / det.clamp_min(1e-30), -one)
+    inside_b = torch.where(det > 0, (a11 * b2 - a12 * b1) / det.clamp_min(1e-30), -one)
+    ok = (inside_a >= 0) & (inside_a <= 1) & (inside_b >= 0) & (inside_b <= 1)
+    best_a, best_b = candidates[0]
+    best = q(best_a, best_b)
+    for a, b in candidates[1:]:
+        value = q(a, b)
+        better = value < best
+        best_a, best_b, best = torch.where(better, a, best_a), torch.where(better, b, best_b), torch.where(better, value, best)
+    return torch.where(ok, inside_a, best_a), torch.where(ok, inside_b, best_b)
 
 
 def keep_far(w):

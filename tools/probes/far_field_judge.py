@@ -10,7 +10,7 @@ perfect judge would buy) and label-free statistics of the scan beside the truth'
 observed cells' plane (its tilt, the share of their variance it explains) and the check's outer
 cells (which of the two errs less there). No orientation average.
 
-    python tools/probes/far_field_judge.py [--size 16] [--only octave3 ...]
+    python tools/probes/far_field_judge.py [--size 16] [--only octave3 ...] [--model CHECKPOINT]
 """
 
 import argparse
@@ -68,10 +68,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=16)
     parser.add_argument("--only", nargs="*", help="the sets to run, by name (default: all)")
+    parser.add_argument("--model", default="shipped", help="a Reconstructor file or checkpoint, checked as the shipped file is")
     args = parser.parse_args()
     torch.set_num_threads(2)
     reconstructor.checked_maps = transplant.checked_maps
-    rec = load_checked("shipped", tta=False)
+    rec = load_checked(args.model, tta=False)
     print("| set | X | Y | oracle | maps Y better | tilt: Y / X maps | plane R2: Y / X maps | outer cells agree |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name, ts in sets(args.size):

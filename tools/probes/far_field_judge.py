@@ -28,15 +28,21 @@ from warp_terrain.inference import selfcheck as check
 from warp_terrain.models.fill import observed_plane
 
 
-def sets(size):
+def sets(size, only=None):
+    """``(name, set)`` of the clean fBm settings, the DEM families without obstacles and the
+    synthetic edge sets; with ``only`` just the sets of those names (the others are not built)."""
+    wanted = lambda name: not only or name in only  # noqa: E731
     for setting in ("octave3", "octave5"):
-        yield setting, make_eval_set(setting, 0.0, size=size, device="cpu")
+        if wanted(setting):
+            yield setting, make_eval_set(setting, 0.0, size=size, device="cpu")
     folder = real_data_dir()
     for family in DEM_FAMILIES:
-        if not family.obstacles:
+        if not family.obstacles and wanted(family.name):
             yield family.name, dem_family_set(family, folder, size, "cpu")
-    for ts in synthetic_edge_sets(size, "cpu"):
-        yield ts.terrain, ts
+    if not only or set(only) - {"octave3", "octave5"} - {f.name for f in DEM_FAMILIES}:
+        for ts in synthetic_edge_sets(size, "cpu"):
+            if wanted(ts.terrain):
+                yield ts.terrain, ts
 
 
 def plane_statistics(scan, mask, cell):
@@ -75,9 +81,7 @@ def main():
     rec = load_checked(args.model, tta=False)
     print("| set | X | Y | oracle | maps Y better | tilt: Y / X maps | plane R2: Y / X maps | outer cells agree |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for name, ts in sets(args.size):
-        if args.only and name not in args.only:
-            continue
+    for name, ts in sets(args.size, args.only):
         scan, mask, target = ts.scan, ts.mask, ts.target
         x, y = predict(rec, scan, mask, "X"), predict(rec, scan, mask, "Y")
         unobs = (mask == 0).float()

@@ -13,6 +13,8 @@ correction, one candidate weighed as a whole. Here the net's own correction ``c 
   cells within [0, 1]^2;
 
 each with the shipped reach (near / far weights, the correction kept whole far from the scan).
+``_splitNF`` (``split_maps``) instead takes the map's near part (the check's ramp, 2 -> 8 cells
+from the scan) from rule ``N`` and its far part from rule ``F``, to tell where a rule gains.
 Without a token the check is the shipped one.
 
 usage: THREADS=1 python tools/probes/transplant.py --fills-cache outputs/fills_cache.json \
@@ -104,8 +106,8 @@ def checked_maps(fills, model, scan, mask, thinned, regimes, membrane, keep_far_
 def split_maps(fills, model, scan, mask, thinned, regimes, membrane, near_kind, far_kind):
     """The map as ``(1 - far) near + far far``: ``near_kind`` "A" the shipped near blend, "B" the
     fill plus the correction's near weight; ``far_kind`` "X" the net's map, "Y" the smooth fill
-    (without the membrane) plus the correction, "Z" the checked fill plus the correction, "W" the net's map moved by the membrane's share
-    (the checked fill less the smooth one)."""
+    (without the membrane) plus the correction, "Z" the checked fill plus the correction, "W"
+    the net's map moved by the membrane's share (the checked fill less the smooth one)."""
     n = scan.shape[0]
     smooth = fills[:-1] if membrane else fills
     choice = check.best_fill(smooth[:, n:], scan, regimes.hidden)

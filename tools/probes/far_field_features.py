@@ -16,7 +16,7 @@ import math
 import torch
 import transplant
 from common import load_checked
-from far_field_judge import plane_statistics, sets, sse
+from far_field_judge import plane_statistics, predict, sets, sse
 
 from warp_terrain.compose import compose_run
 from warp_terrain.data.seeds import validation_seed
@@ -48,13 +48,7 @@ def variogram_ratio(resid, obs, short=2, long=8):
 def features_and_labels(rec, scan, mask, target, cell):
     """(features (B, F), lam (B,), D (B,), sse of X, differ (B,) bool, unobserved cells): the blend
     ``X + p (Y - X)`` errs ``ex + D (p^2 - 2 p lam)`` on a map's unobserved cells."""
-    xs, ys = [], []
-    for kind, store in (("X", xs), ("Y", ys)):
-        transplant.PROBE.clear()
-        transplant.PROBE["split"] = ("A", kind)
-        for i in range(0, scan.shape[0], 16):
-            store.append(rec.predict_maps(scan[i : i + 16], mask[i : i + 16]))
-    x, y = torch.cat(xs), torch.cat(ys)
+    x, y = predict(rec, scan, mask, "X"), predict(rec, scan, mask, "Y")
     unobs = (mask == 0).to(x.dtype)
     d = (y - x) * unobs
     D = (d * d).sum(dim=(1, 2, 3))

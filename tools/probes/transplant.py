@@ -70,6 +70,8 @@ def sq_error(pred, scan, cells):
 
 
 def checked_maps(fills, model, scan, mask, thinned, regimes, membrane, keep_far_flag=True):
+    if PROBE.get("split"):
+        return split_maps(fills, model, scan, mask, thinned, regimes, membrane, *PROBE["split"])
     n = scan.shape[0]
     fill, fill_thinned = check.checked_fills(fills, scan, mask, thinned, regimes, membrane)
     base, base_thinned = fills[0, :n], fills[0, n:]
@@ -78,8 +80,6 @@ def checked_maps(fills, model, scan, mask, thinned, regimes, membrane, keep_far_
     if keep_far_flag:
         w = keep_far(w)
     shipped = regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
-    if PROBE.get("split"):
-        return split_maps(fills, model, scan, mask, thinned, regimes, membrane, *PROBE["split"])
     if not (PROBE.get("tp") or PROBE.get("sel") or PROBE.get("joint")):
         return shipped
     if PROBE.get("joint"):

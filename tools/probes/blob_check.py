@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): the self-check hiding blobs of observed cells instead
+"""Probe (docs/transfer.md): the self-check hiding blobs of observed cells instead
 of single cells. A single hidden cell has kept cells all about it, where the net's correction
 matters least; the shadows the net fills lie cells away from the scan. NAME token ``_blobN``:
 the check's cells are N x N blocks (seeds drawn at share / N^2, dilated, kept where observed),

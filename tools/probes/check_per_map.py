@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): what the shipped check decides per map of a synthetic
+"""Probe (docs/transfer.md): what the shipped check decides per map of a synthetic
 setting, beside what each candidate scores there. Per map: the smooth fill it picks (0 the base
 fill, 1 the thin plate), the membrane's share near / far, the net's near weight, and the RMSE on
 unobserved cells of the net alone, the checked map, the base fill and the membrane; then both

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): can a judge learned on the training world pick a
+"""Probe (docs/transfer.md): can a judge learned on the training world pick a
 map's far field? Per map of the shipped recipe's own world (validation seeds, never trained on)
 and of the suites' sets: the least-squares share ``lam`` of ``Y - X`` (``far_field_judge.py``:
 ``X`` the shipped map, ``Y`` its far field from the picked smooth fill) against the truth on

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): which far field a map wants, and what the scan says.
+"""Probe (docs/transfer.md): which far field a map wants, and what the scan says.
 
 ``transplant.py`` found the families split by the far field (8+ cells from the scan): the
 shipped map there is the net's (``X``: its base fill, the thin plate about the observed cells'

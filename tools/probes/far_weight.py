@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): other far weights for the self-check's correction.
+"""Probe (docs/transfer.md): other far weights for the self-check's correction.
 NAME tokens: ``_rN_M`` the correction's near/far ramp (``far_share(near=N, far=M)``, default 2_8);
 ``_wfar1`` the far weight 1 (what ``check_keep_far`` does); ``_veto`` 1 unless the outer cells'
 weight is below 1/2; ``_odK`` the far weight measured only on the outer cells K or more cells

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): a check graded by distance. Single hidden cells have
+"""Probe (docs/transfer.md): a check graded by distance. Single hidden cells have
 kept cells about them and measure the net where the real scans' scored cells lie, one cell from
 the scan; hidden 3x3 blocks measure it one or two cells away, where shadows begin. Here both are
 hidden in the one thinned pass (``_gradedP``: each about P % of the observed cells), the net's

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): the self-check's correction weight per neighbourhood
+"""Probe (docs/transfer.md): the self-check's correction weight per neighbourhood
 instead of per map. The check weighs the net's correction by one least-squares weight per map,
 measured on the hidden cells; where the net is right in one part of a map (an obstacle's edge) and
 wrong in another (open ground), one weight keeps neither. Here the weight at a cell is the least-

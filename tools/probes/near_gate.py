@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): the net's correction on unobserved cells ramped from
+"""Probe (docs/transfer.md): the net's correction on unobserved cells ramped from
 nothing at an observed cell to whole ``N`` cells away (``clamp(d / N, 0, 1)``, d the chessboard
 distance), with or without the self-check. NAME token ``_gN`` (no token: no gate).
 

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): each model's obstacle IoU (flat ground with cylinders)
+"""Probe (docs/transfer.md): each model's obstacle IoU (flat ground with cylinders)
 and pit recall (pits and ditches), with its unobserved-cell RMSE beside the best classical fill's,
 checked as the shipped file is and unchecked; 8-orientation average as `evaluate`.
 

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): the far check on wide gaps. The scan's outer cells
+"""Probe (docs/transfer.md): the far check on wide gaps. The scan's outer cells
 (``selfcheck.outer_cells``) are replaced by its observed cells beyond the median radius inside
 ``K`` evenly spaced sectors of ``W`` degrees: hidden, they leave gaps several cells wide.
 NAME token ``_sK_W`` (default 6_20); use ``_nokeepfar`` so that the far weight is measured.

@@ -1,4 +1,4 @@
-"""Probe (README, "Transfer to real ground"): the net's correction laid on the fill the check picks.
+"""Probe (docs/transfer.md): the net's correction laid on the fill the check picks.
 
 The shipped check blends ``fill + w (model - fill)``, ``fill`` the classical fill it picked (the
 base fill or the thin plate, moved towards the membrane). Where the membrane wins (rough ground,

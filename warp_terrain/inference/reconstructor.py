@@ -67,7 +67,7 @@ class Reconstructor:
     mean position to their centres before the model sees them (``models.centring``): on
     simulated scans the shipped model's unobserved-cell error is 2-5 % lower so on clean smooth
     ground and level on noisy scans and real sweeps, but the checked sigma, calibrated on mean
-    heights, narrows too much on smooth ground (README, "Transfer to real ground", stop 34).
+    heights, narrows too much on smooth ground (docs/transfer.md, stop 34).
     Only ``reconstruct*`` (from points) can do it: a map alone does not say where its returns lay.
     """
 

@@ -31,7 +31,7 @@ reach costs no extra pass of the model.
 
 The outer cells cannot see far either: hidden, each still lies a cell or two from a kept one,
 where the net errs most, so ``w_far`` measures the net next to the scan again and refutes
-corrections that help in long shadows (README, "Transfer to real ground": on 6 m relief the
+corrections that help in long shadows (docs/transfer.md: on 6 m relief the
 shipped net alone scores 0.85 of the best fill, checked with ``w_far`` 1.12). With
 ``keep_far`` the correction is kept whole far from the scan (``w_far = 1``): the check then
 governs where it can measure, next to the scan, and the trained net where nothing can be

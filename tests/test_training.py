@@ -353,7 +353,7 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
 
 
 def test_the_plain_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_more_plain_fbm():
-    """`experiment=plain_finetune` (README, stop 35) changes the shipped recipe's world in one
+    """`experiment=plain_finetune` (docs/transfer.md, stop 35) changes the shipped recipe's world in one
     field, the wide world's plain-fBm share, and continues from the shipped weights."""
     from warp_terrain.compose import compose_run
 

@@ -1,8 +1,7 @@
 """Average a fine-tuned generator's weights with those it started from (weight-space ensembling,
 as WiSE-FT does for fine-tuned classifiers: Wortsman et al., "Robust fine-tuning of zero-shot
 models", CVPR 2022). A fine-tune gains where its world moved and drifts elsewhere; the average
-of the two nets often keeps most of the gain and little of the drift (README, "Transfer to real
-ground", stop 35).
+of the two nets often keeps most of the gain and little of the drift (docs/transfer.md, stop 35).
 
 usage: python tools/average_weights.py FINETUNED START --alpha 0.5 --out outputs/soup.pt
 

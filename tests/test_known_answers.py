@@ -6,6 +6,8 @@ ONNX graph that differs from torch) fails them. Each test states its tolerance a
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -364,3 +366,19 @@ def test_export_onnx_from_the_command_line_matches_torch(tmp_path, capsys):
     assert got.shape == want.shape == (2, 1, 41, 41)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-4)
     assert np.abs(want).max() > 1e-3  # the comparison is not between two zero maps
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["beyond_tolerance"] == [] and set(report["max_abs_diff_by_output"]) == {"height"}
+
+
+def test_export_onnx_fails_naming_the_output_beyond_its_tolerance(tmp_path, capsys, monkeypatch):
+    """A difference beyond an output's tolerance exits 1 and names the output, its difference
+    in its units and the tolerance (here a tolerance below any difference)."""
+    pytest.importorskip("onnxruntime")
+    from warp_terrain.cli import main
+    from warp_terrain.inference import onnx
+
+    _tiny_reconstructor(tmp_path / "tiny.pt")
+    monkeypatch.setitem(onnx.PARITY_TOLERANCE, "height", -1.0)
+    assert main(["export-onnx", str(tmp_path / "tiny.onnx"), "--model", str(tmp_path / "tiny.pt"), "--map-size", "41"]) == 1
+    err = capsys.readouterr().err
+    assert "error: ONNX's height differs from torch's by" in err and " m (tolerance -1)" in err

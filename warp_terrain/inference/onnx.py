@@ -14,6 +14,16 @@ from ..core.atomic import atomic_path
 from ..core.geometry import MAP_SIZE
 from ..models.uncertainty import split_output
 
+#: How far ONNX Runtime's outputs may lie from torch's: ``height`` in metres, ``log_variance`` in
+#: log m^2 (0.01 moves a sigma by 0.5 %). A fill-residual model solves its base fill by a fixed
+#: count of float32 conjugate-gradient steps (``models/biharmonic.py``); where a map's solve has
+#: not settled, the two runtimes' roundings (the same ops, summed in another order) lead it to
+#: other points of the same unfinished path. Measured on the shipped file, 68 maps of the
+#: default stream: heights apart by 7e-7 m at the median map and 3.9e-4 m at the most,
+#: log-variances by 1.5e-3 at the most; torch's own float32 thin plate lies up to 9.6e-4 m from
+#: its float64 solve. A millimetre is well under any LIDAR's range noise.
+PARITY_TOLERANCE = {"height": 1e-3, "log_variance": 1e-2}
+
 
 class SplitOutputs(torch.nn.Module):
     """A generator whose outputs are named: ``height`` and, with an uncertainty head, the
@@ -63,8 +73,9 @@ def export_onnx(
 
 
 def check_onnx(generator: torch.nn.Module, path: str | os.PathLike, condition: torch.Tensor, repeats: int = 20, uncertainty: bool = False) -> dict:
-    """Max |torch - onnxruntime| over every output on ``condition`` and the median latency of
-    each (ms)."""
+    """|torch - onnxruntime| on ``condition``: the largest per output (``max_abs_diff_by_output``)
+    and over all of them (``max_abs_diff``), the outputs beyond :data:`PARITY_TOLERANCE`
+    (``beyond_tolerance``, empty when the export holds), and the median latency of each (ms)."""
     import onnxruntime as ort
 
     model = SplitOutputs(generator.eval().cpu(), uncertainty)
@@ -87,5 +98,7 @@ def check_onnx(generator: torch.nn.Module, path: str | os.PathLike, condition: t
     with torch.no_grad():
         torch_ms = median_ms(lambda: model(x))
     onnx_ms = median_ms(lambda: session.run(model.output_names, {"condition": x.numpy()}))
-    diff = max(float(np.abs(e - g).max()) for e, g in zip(expected, got))
-    return {"max_abs_diff": diff, "torch_ms": torch_ms, "onnxruntime_ms": onnx_ms, "batch": int(x.shape[0]), "outputs": model.output_names}
+    by_output = {name: float(np.abs(e - g).max()) for name, e, g in zip(model.output_names, expected, got)}
+    beyond = [name for name, diff in by_output.items() if not diff <= PARITY_TOLERANCE[name]]
+    return {"max_abs_diff": max(by_output.values()), "max_abs_diff_by_output": by_output, "beyond_tolerance": beyond,
+            "torch_ms": torch_ms, "onnxruntime_ms": onnx_ms, "batch": int(x.shape[0]), "outputs": model.output_names}

@@ -359,7 +359,10 @@ def test_observed_cells_move_at_most_the_bound():
 def test_generator_exports_to_onnx_and_matches(tmp_path, refine, screened):
     onnxruntime = pytest.importorskip("onnxruntime")
     g = build_generator(model_config(start_from_fill=False, refine=refine, screened_input=screened)).eval()
-    x = condition(size=48)
+    # 15 cells: two pyramid levels (8 and 15), the coarse fill upsampled to 16 and cropped, the
+    # U-Net's input padded to 16 and cropped back: every kind of op of a 121-cell graph, exported
+    # in 47 s for both cases against 115 s at 48 cells (measured beside a training run)
+    x = condition(size=15)
     path = tmp_path / "g.onnx"
     torch.onnx.export(g, (x,), str(path), input_names=["condition"], output_names=["out"], dynamo=False)
     got = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"condition": x.numpy()})[0]

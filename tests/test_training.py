@@ -350,16 +350,3 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
     rec = Reconstructor.load(device="cpu")
     assert rec.model_config.to_dict() == composed["model"]
     assert rec.meta["step"] == composed["train"]["steps"]
-
-
-def test_the_plain_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_more_plain_fbm():
-    """`experiment=plain_finetune` (docs/transfer.md, stop 35) changes the shipped recipe's world in one
-    field, the wide world's plain-fBm share, and continues from the shipped weights."""
-    from warp_terrain.compose import compose_run
-
-    tuned = compose_run(["experiment=plain_finetune"], files=False)
-    shipped = compose_run(["experiment=pretrained"], files=False)
-    assert tuned.data.randomize.plain_probability == 0.8 and shipped.data.randomize.plain_probability == 0.4
-    assert tuned.train.init_from == "pretrained" and tuned.train.steps == 3000 and tuned.model.lr_g == 1e-4
-    tuned.data.randomize.plain_probability, tuned.model.lr_g = shipped.data.randomize.plain_probability, shipped.model.lr_g
-    assert tuned.data == shipped.data and tuned.terrain == shipped.terrain and tuned.model == shipped.model and tuned.scans == shipped.scans

@@ -107,7 +107,8 @@ def split_maps(fills, model, scan, mask, thinned, regimes, membrane, near_kind, 
     """The map as ``(1 - far) near + far far``: ``near_kind`` "A" the shipped near blend, "B" the
     fill plus the correction's near weight; ``far_kind`` "X" the net's map, "Y" the smooth fill
     (without the membrane) plus the correction, "Z" the checked fill plus the correction, "W"
-    the net's map moved by the membrane's share (the checked fill less the smooth one)."""
+    the net's map moved by the membrane's share (the checked fill less the smooth one), "H"
+    halfway between "X" and "Y" (a fixed hedge between the two far fields, no judge)."""
     n = scan.shape[0]
     smooth = fills[:-1] if membrane else fills
     choice = check.best_fill(smooth[:, n:], scan, regimes.hidden)
@@ -122,7 +123,7 @@ def split_maps(fills, model, scan, mask, thinned, regimes, membrane, near_kind, 
         else:
             v = regimes.weight(fill_thinned + (model[n:] - fills[0, n:]), fill_thinned, scan)[0]
             near = f + v * c
-        far_map = {"X": m, "Y": s_ + c, "Z": f + c, "W": m + (f - s_)}[far_kind]
+        far_map = {"X": m, "Y": s_ + c, "Z": f + c, "W": m + (f - s_), "H": 0.5 * (m + s_ + c)}[far_kind]
         share = regimes.far(obs).to(m.dtype) if regimes.outer is not None else torch.zeros_like(m)
         out.append((1 - share) * near + share * far_map)
     return tuple(out)
@@ -130,7 +131,7 @@ def split_maps(fills, model, scan, mask, thinned, regimes, membrane, near_kind, 
 
 def settings_of(name: str) -> dict:
     out = {key: f"_{key}" in name for key in ("tp", "sel", "joint")}
-    if m := re.search(r"_split([AB])([XYZW])", name):
+    if m := re.search(r"_split([AB])([XYZWH])", name):
         out["split"] = (m[1], m[2])
     return out
 

@@ -21,6 +21,7 @@ from warp_terrain.inference.selfcheck import (
     hidden_cells,
     outer_cells,
     pick,
+    resolved_sigma_factor,
     scan_noise,
     sigma_factor,
 )
@@ -449,6 +450,12 @@ def test_sigma_factor_keeps_the_files_sigma_where_the_noise_hides_the_maps_error
     fewer[:, :, 5:] = False
     fewer[:, :, :, 5:] = False  # 25 cells: the quantile errs more, 1.3 n no longer stands out (1 + 2 / sqrt(25) = 1.4)
     assert torch.equal(sigma_factor(predicted, sig, measured, fewer, noise=torch.full((2, 1, 1, 1), n)).flatten(), torch.ones(2))
+    # a file's fallback for the maps the check cannot resolve replaces the 1, and only there
+    k, resolved = resolved_sigma_factor(predicted, sig, measured, cells, noise=torch.full((2, 1, 1, 1), n))
+    assert resolved.tolist() == [False, True]
+    torch.testing.assert_close(k.flatten(), torch.tensor([1.0, 0.69**0.5 * n / sigma]), rtol=0, atol=1e-6)
+    fallen = sigma_factor(predicted, sig, measured, cells, noise=torch.full((2, 1, 1, 1), n), fallback=0.4).flatten()
+    torch.testing.assert_close(fallen, torch.tensor([0.4, 0.69**0.5 * n / sigma]), rtol=0, atol=1e-6)
 
 
 def test_scan_noise_is_zero_on_planes_and_the_deviation_of_independent_noise():
@@ -529,6 +536,45 @@ def test_check_sigma_scales_each_maps_sigma_to_its_checked_errors():
     assert float((height - truth).abs().max()) < 0.01
     torch.testing.assert_close(plain, torch.ones_like(plain), rtol=0, atol=1e-6)
     assert float(scaled.max()) < 0.01 and float(scaled.min()) > 0
+
+
+def test_the_fallback_sigma_is_fitted_on_the_maps_the_check_cannot_resolve(monkeypatch):
+    """Two calibration maps: a plane the check resolves (its errors about 0) and a sparse scan of
+    a bump whose check has fewer than SIGMA_MIN_CELLS hidden cells in each regime. The fallback
+    factor is ``sigma_scale`` times the 68.27 % quantile of |error| / sigma over the sparse map's
+    unobserved cells alone; with it in the file the sparse map's sigma is that factor times the
+    raw sigma, and the plane's stays as the check scaled it."""
+    from warp_terrain.evaluation import calibrate
+
+    plane, plane_mask, plane_truth = plane_scan()
+    r, c = torch.meshgrid(torch.arange(48, dtype=torch.float32), torch.arange(48, dtype=torch.float32), indexing="ij")
+    bump = (plane_truth[0, 0] + 0.5 * torch.exp(-((r - 30) ** 2 + (c - 20) ** 2) / 50.0))[None, None]
+    sparse_mask = torch.zeros_like(plane_mask)
+    sparse_mask[0, 0, ::12, ::12] = 1.0  # 16 cells: 3 hidden at random, 5 outer
+    pairs = {"scan": torch.cat([plane, bump * sparse_mask]), "mask": torch.cat([plane_mask, sparse_mask]),
+             "target": torch.cat([plane_truth, bump])}
+    monkeypatch.setattr(calibrate, "make_pair", lambda sim, n, seed, device: {k: v[:n] for k, v in pairs.items()})
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, base_fill="plane_biharmonic", height_reference="plane", uncertainty=True)
+    g = FillResidualGenerator(Constant(0.3, 0.0), base="plane_biharmonic", reference="plane")
+    rec = Reconstructor(g, cfg, {"sigma_scale": 2.0}, device="cpu", tta=False, self_check=True, check_reach=True, check_sigma=True)
+    before_height, before_sigma = rec.predict_maps_with_uncertainty(pairs["scan"], pairs["mask"])
+    torch.testing.assert_close(before_sigma[1], torch.full_like(before_sigma[1], 2.0))  # unresolved: the file's sigma_scale
+    unobserved = pairs["mask"][1] <= 0
+    ratio = ((before_height[1] - pairs["target"][1]).abs() / before_sigma[1])[unobserved]
+    expected = 2.0 * float(torch.quantile(ratio.double(), SIGMA_COVERAGE))
+    fitted = calibrate.fit_unresolved_sigma_scale(rec, None, size=2)
+    assert fitted == pytest.approx(expected, rel=1e-6)
+    rec.meta["sigma_scale_unresolved"] = fitted
+    assert rec.unresolved_sigma_factor == pytest.approx(fitted / 2.0)
+    _, after_sigma = rec.predict_maps_with_uncertainty(pairs["scan"], pairs["mask"])
+    torch.testing.assert_close(after_sigma[1], torch.full_like(after_sigma[1], fitted))
+    torch.testing.assert_close(after_sigma[0], before_sigma[0], rtol=0, atol=0)  # resolved: the check's own factor
+    assert float(before_sigma[0].max()) < 0.1  # the plane's sigma was scaled to its tiny checked errors
+    only_plane = {k: v[:1] for k, v in pairs.items()}
+    monkeypatch.setattr(calibrate, "make_pair", lambda sim, n, seed, device: only_plane)
+    assert calibrate.fit_unresolved_sigma_scale(rec, None, size=1) is None  # nothing unresolved to fit on
+    with pytest.raises(ValueError, match="needs a model that checks its sigma"):
+        calibrate.fit_unresolved_sigma_scale(Reconstructor(g, cfg, device="cpu", tta=False, self_check=True), None)
 
 
 def test_the_check_moves_the_fill_towards_the_membrane_by_the_share_the_scan_supports():

@@ -219,3 +219,17 @@ def test_package_model_keeps_the_generator_and_calibrates_its_uncertainty(tmp_pa
     assert out.stat().st_size < checkpoint.stat().st_size / 2  # the generator alone, in fp16
     assert main(["package-model", str(checkpoint), "--out", str(tmp_path / "raw.pt"), "--calibrate", "0"]) == 0
     assert Reconstructor.load(tmp_path / "raw.pt", device="cpu").sigma_scale == 1.0
+    assert report["sigma_scale_unresolved"] is None and "sigma_scale_unresolved" not in rec.meta  # not checked: no fallback
+    # a checked sigma: the fallback of the maps the check cannot resolve is fitted too, on the same
+    # pairs (noisy ones here, whose errors the check cannot see under the noise)
+    run["data"]["noise"] = 0.3
+    torch.save({"model": model.state_dict(), "step": 3, "config": run}, checkpoint)
+    checked = tmp_path / "checked.pt"
+    capsys.readouterr()
+    assert main(["package-model", str(checkpoint), "--out", str(checked), "--calibrate", "16", "--device", "cpu",
+                 "--self-check", "--check-reach", "--check-sigma"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    rec = Reconstructor.load(checked, device="cpu")
+    unresolved = rec.meta.get("sigma_scale_unresolved")
+    assert unresolved is not None and unresolved > 0 and report["sigma_scale_unresolved"] == pytest.approx(unresolved)
+    assert rec.unresolved_sigma_factor == pytest.approx(unresolved / rec.sigma_scale)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from functools import partial
 from importlib import resources
 from pathlib import Path
@@ -18,7 +19,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import cell_offsets, check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import THIN_PLATE_ONLY, Regimes, check_cells, checked_maps, scan_noise, sigma_factor
+from .selfcheck import THIN_PLATE_ONLY, Regimes, check_cells, checked_maps, resolved_sigma_factor, scan_noise
 
 PRETRAINED = "reconstructor.pt"
 
@@ -42,6 +43,20 @@ def _unorient(x: torch.Tensor, turns: int, mirror: bool) -> torch.Tensor:
     return torch.rot90(x, -turns, dims=(2, 3))
 
 
+@dataclass
+class CheckedMaps:
+    """What ``Reconstructor.check_maps`` measured: ``height`` (B, 1, S, S), the checked maps;
+    ``sigma`` their sigma at the file's own calibration (``sigma_scale``; None without an
+    uncertainty head); ``regimes``, where each measured weight holds; ``factors``, with
+    ``check_sigma``, per regime ``(near, away)`` the ``(k, resolved)`` of
+    ``selfcheck.resolved_sigma_factor`` (``away`` None without the reach), else None."""
+
+    height: torch.Tensor
+    sigma: torch.Tensor | None
+    regimes: Regimes
+    factors: tuple | None
+
+
 class Reconstructor:
     """A generator with what it needs to read a point cloud: ``reconstruct(points) -> map``.
 
@@ -61,7 +76,10 @@ class Reconstructor:
     With ``check_sigma`` (and the self-check) each map's sigma is instead scaled on its own scan:
     by the factor that puts 68 % of the check's hidden cells within 1 sigma (``selfcheck.sigma_factor``),
     the measured heights' own noise taken out (``selfcheck.scan_noise``): the sigma is about the
-    ground, not about the scan's noise.
+    ground, not about the scan's noise. A map whose check cannot measure its error (too few
+    hidden cells, or errors hidden under the scan's noise) takes ``meta["sigma_scale_unresolved"]``
+    instead, where the file has it: the factor fitted on the calibration maps the check could not
+    resolve (:func:`~warp_terrain.evaluation.calibrate.fit_unresolved_sigma_scale`); else ``sigma_scale``.
 
     ``centre_cells`` (off unless the file says so): a cloud's cells are moved from their returns'
     mean position to their centres before the model sees them (``models.centring``): on
@@ -175,10 +193,28 @@ class Reconstructor:
             height, sigma = self._predict_checked(scan.to(self.device), mask.to(self.device))
         return height.clone(), None if sigma is None else sigma.clone()
 
+    @property
+    def unresolved_sigma_factor(self) -> float:
+        """The factor, on top of ``sigma_scale``, of a map whose check cannot measure its error:
+        ``meta["sigma_scale_unresolved"] / sigma_scale`` (1 for a file without it)."""
+        return float(self.meta.get("sigma_scale_unresolved", self.sigma_scale)) / self.sigma_scale
+
     def _predict_checked(self, scan: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """``predict_maps_with_uncertainty`` of inputs on the model's device, without grad."""
         if not self.self_check:
             return self._predict(scan, mask)[:2]
+        checked = self.check_maps(scan, mask)
+        if checked.factors is None:
+            return checked.height, checked.sigma
+        fallback = self.unresolved_sigma_factor
+        factors = tuple(None if f is None else torch.where(f[1].view(-1, 1, 1, 1), f[0], torch.full_like(f[0], fallback))
+                        for f in checked.factors)
+        return checked.height, checked.sigma * checked.regimes.at(factors, mask)
+
+    def check_maps(self, scan: torch.Tensor, mask: torch.Tensor) -> CheckedMaps:
+        """The self-check's parts of inputs on the model's device (call it without grad): the
+        checked maps, their sigma before the check scales it and, with ``check_sigma``, the
+        per-map factors each regime measured (``selfcheck.resolved_sigma_factor``)."""
         hidden, outer, thinned = check_cells(mask, self.check_reach)  # one pass answers both checks
         # the scan and its thinned copy go through the net, and their classical fills through one solve, together
         n = scan.shape[0]
@@ -187,11 +223,11 @@ class Reconstructor:
         regimes = Regimes(hidden, outer if self.check_reach else None)
         height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, self.check_membrane,
                                               self.check_keep_far)
-        sigma = None if sigmas is None else sigmas[:n]
-        if sigma is not None and self.check_sigma:  # scaled on the cells the thinned map did not see, per regime
-            factor = partial(sigma_factor, noise=scan_noise(scan, mask))  # sigma is about the ground, not the scan's noise
-            sigma = sigma * regimes.at(regimes.measure(factor, height_thinned, sigmas[n:], scan), mask)
-        return height, sigma
+        sigma, factors = None if sigmas is None else sigmas[:n], None
+        if sigma is not None and self.check_sigma:  # measured on the cells the thinned map did not see, per regime
+            factor = partial(resolved_sigma_factor, noise=scan_noise(scan, mask))  # about the ground, not the scan's noise
+            factors = regimes.measure(factor, height_thinned, sigmas[n:], scan)
+        return CheckedMaps(height, sigma, regimes, factors)
 
     @property
     def check_membrane(self) -> bool:

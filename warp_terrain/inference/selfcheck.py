@@ -224,13 +224,27 @@ SIGMA_RESOLUTION = 2.0
 
 def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.Tensor, cells: torch.Tensor,
                  coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS, noise: torch.Tensor | None = None,
-                 resolution: float = SIGMA_RESOLUTION) -> torch.Tensor:
+                 resolution: float = SIGMA_RESOLUTION, fallback: float = 1.0) -> torch.Tensor:
     """(B, 1, 1, 1): per map, the factor ``k`` that puts ``coverage`` of the check's ``cells``
-    within ``k sigma``: the ``coverage`` quantile of ``|predicted - measured| / sigma`` there.
+    within ``k sigma`` (:func:`resolved_sigma_factor`), or ``fallback`` on a map whose check
+    cannot measure its error (too few cells, or errors hidden under the scan's noise): 1 keeps
+    the file's own ``sigma_scale``; a Reconstructor passes the factor its file fitted on the
+    calibration maps the check could not resolve (``meta["sigma_scale_unresolved"]``)."""
+    k, resolved = resolved_sigma_factor(predicted, sigma, measured, cells, coverage, min_cells, noise, resolution)
+    return torch.where(resolved.view(-1, 1, 1, 1), k, torch.full_like(k, float(fallback)))
+
+
+def resolved_sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.Tensor, cells: torch.Tensor,
+                          coverage: float = SIGMA_COVERAGE, min_cells: int = SIGMA_MIN_CELLS, noise: torch.Tensor | None = None,
+                          resolution: float = SIGMA_RESOLUTION) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(k, resolved)``: per map, ``k`` (B, 1, 1, 1), the factor that puts ``coverage`` of the
+    check's ``cells`` within ``k sigma``: the ``coverage`` quantile of ``|predicted - measured| /
+    sigma`` there; and ``resolved`` (B,) bool, whether the check measures the map's error at all
+    (``k`` is 1 where it does not).
     The check's cells are real measurements the map did not see, so ``k sigma`` means on this
     scan what it says (about 68 % of errors within 1 sigma), whatever ground the model was
     trained on; a quantile, not a mean of squares, so a few wild cells (a wall) do not inflate it.
-    Maps with fewer than ``min_cells`` cells keep ``k = 1``.
+    Maps with fewer than ``min_cells`` cells are not resolved.
 
     A measured height errs itself (``noise``, (B, 1, 1, 1) metres: the scan's own noise,
     :func:`scan_noise`), so the checked error ``d = e - n`` of a cell holds the map's error ``e``
@@ -243,21 +257,20 @@ def sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured: torch.T
     quantile stands less than ``resolution`` of its own standard errors (``1 / sqrt(cells)`` of
     it) above ``noise``, the map's error is indistinguishable from zero and ``k`` would be 0 or
     near it by chance (on noisy scans a third of the maps, each then with under 40 % of its errors
-    within its sigma); such a map keeps ``k = 1``, the file's own calibration, as a map with too
-    few cells does."""
+    within its sigma); such a map is not resolved, as a map with too few cells is not."""
     checked = (predicted - measured).abs()
     error = checked if noise is None else (checked.square() - noise.square()).clamp_min(0.0).sqrt()
     ratio = (error / sigma.clamp_min(1e-6)).float()
     ratio = torch.where(cells, ratio, torch.nan).flatten(1)
     k = torch.nanquantile(ratio, coverage, dim=1)
     count = cells.flatten(1).sum(dim=1)
-    usable = (count >= min_cells) & torch.isfinite(k)
+    resolved = (count >= min_cells) & torch.isfinite(k)
     if noise is not None:
         quantile = torch.nanquantile(torch.where(cells, checked, torch.nan).float().flatten(1), coverage, dim=1)
         floor = noise.flatten().float() * (1.0 + resolution / count.clamp_min(1).float().sqrt())
-        usable &= (noise.flatten() <= 0) | (quantile > floor)
-    k = torch.where(usable, k, torch.ones_like(k))
-    return k.view(-1, 1, 1, 1).to(sigma.dtype)
+        resolved &= (noise.flatten() <= 0) | (quantile > floor)
+    k = torch.where(resolved, k, torch.ones_like(k))
+    return k.view(-1, 1, 1, 1).to(sigma.dtype), resolved
 
 
 #: A Gaussian's standard deviation over its median absolute deviation.

@@ -266,7 +266,8 @@ def add_package_model(sub) -> None:
                         "on the scan's outermost observed cells, hidden (inference/selfcheck.py)")
     p.add_argument("--check-sigma", action="store_true",
                    help="with --self-check: each map's sigma is scaled on the check's own cells, so that 68 %% of their "
-                        "errors lie within 1 sigma (inference/selfcheck.py sigma_factor)")
+                        "errors lie within 1 sigma (inference/selfcheck.py sigma_factor); with --calibrate, the factor "
+                        "of the maps the check cannot resolve (noisy scans) is fitted on such maps of the same pairs")
     p.add_argument("--check-membrane", action="store_true",
                    help="with --self-check: the check also weighs the membrane (Laplace interpolation) beside the thin plate")
     p.add_argument("--check-keep-far", action="store_true",

@@ -355,14 +355,46 @@ def test_observed_cells_move_at_most_the_bound():
     assert moved[observed].max() <= 0.1 + 1e-6 and moved[~observed].max() > 1.0
 
 
-@pytest.mark.parametrize("refine,screened", [(0, 0.0), (2, 0.1)])
-def test_generator_exports_to_onnx_and_matches(tmp_path, refine, screened):
+def test_a_noisy_scans_observed_cells_may_move_by_its_noise():
+    """``noise_bound=3``: the bound on observed cells is ``max(observed_bound, 3 scan_noise)`` per
+    map. A wild correction moves the observed cells of a scan with 0.2 m of noise by up to that
+    bound (about 0.6 m, reached within 1 mm), those of the same scan without noise by 0.1 m at
+    most, as without ``noise_bound``; unobserved cells stay free."""
+    from warp_terrain.models.noise import scan_noise
+
+    torch.manual_seed(1)
+    g = FillResidualGenerator(torch.nn.Conv2d(2, 1, 1), base="biharmonic", reference="plane", observed_bound=0.1,
+                              noise_bound=3.0)
+    clean = condition()
+    noisy = clean.clone()
+    noisy[:, :1] += 0.2 * torch.randn_like(clean[:, :1]) * clean[:, 1:]
+    with torch.no_grad():
+        g.net.weight.fill_(50.0)  # a wild correction
+        bounds = []
+        for x in (clean, noisy):
+            observed = x[:, 1:] > 0
+            moved = (g(x) - x[:, :1]).abs()
+            bound = max(0.1, 3.0 * float(scan_noise(x[:, :1], x[:, 1:])))
+            assert moved[observed].max() <= bound + 1e-6 and moved[observed].max() > bound - 1e-3 and moved[~observed].max() > 1.0
+            bounds.append(bound)
+    assert bounds[0] == 0.1 and 0.5 < bounds[1] < 0.7
+    with pytest.raises(ValueError, match="noise_bound: needs observed_bound > 0"):
+        FillResidualGenerator(torch.nn.Conv2d(2, 1, 1), noise_bound=3.0)
+
+
+@pytest.mark.parametrize("refine,screened,noise_bound", [(0, 0.0, 0.0), (2, 0.1, 3.0)])
+def test_generator_exports_to_onnx_and_matches(tmp_path, refine, screened, noise_bound):
     onnxruntime = pytest.importorskip("onnxruntime")
-    g = build_generator(model_config(start_from_fill=False, refine=refine, screened_input=screened)).eval()
+    g = build_generator(model_config(start_from_fill=False, refine=refine, screened_input=screened, observed_bound=0.1 if noise_bound else 0.0,
+                                     observed_bound_noise=noise_bound)).eval()
     # 15 cells: two pyramid levels (8 and 15), the coarse fill upsampled to 16 and cropped, the
     # U-Net's input padded to 16 and cropped back: every kind of op of a 121-cell graph, exported
-    # in 47 s for both cases against 115 s at 48 cells (measured beside a training run)
+    # in 47 s for both cases against 115 s at 48 cells (measured beside a training run); with the
+    # noise-widened bound, a noisy scan (the bound then above observed_bound: the sort and gather of
+    # the scan's noise in the graph)
     x = condition(size=15)
+    if noise_bound:
+        x[:, :1] += 0.3 * torch.randn(x[:, :1].shape, generator=torch.Generator().manual_seed(5)) * x[:, 1:]
     path = tmp_path / "g.onnx"
     torch.onnx.export(g, (x,), str(path), input_names=["condition"], output_names=["out"], dynamo=False)
     got = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"condition": x.numpy()})[0]
@@ -448,7 +480,8 @@ def test_widening_takes_one_more_input_column_and_refuses_anything_else():
 
 def test_config_names_bad_fill_and_reference():
     for key, value in (("base_fill", "kriging"), ("height_reference", "median"), ("observed_bound", -1.0),
-                       ("screened_input", -0.1), ("screened_input", float("inf"))):
+                       ("screened_input", -0.1), ("screened_input", float("inf")), ("observed_bound_noise", -1.0),
+                       ("observed_bound_noise", 3.0)):  # the last: without observed_bound
         with pytest.raises(ValueError, match=key):
             model_config(**{key: value})
 

@@ -167,6 +167,7 @@ INVALID = {
     "model.base_fill": "kriging",
     "model.height_reference": "median",
     "model.observed_bound": -0.1,
+    "model.observed_bound_noise": -1.0,
     "model.screened_input": -0.1,
     "model.start_from_fill": "maybe",
     "model.fill_relative_loss": "maybe",

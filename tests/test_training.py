@@ -217,6 +217,17 @@ def test_init_from_starts_the_generator_from_a_model_file_and_refuses_another_ne
     assert len(widened) == 2 and all(torch.equal(got[k][:, :-1], expected[k]) and not got[k][:, -1].any() for k in widened)
     assert all(torch.equal(got[k], expected[k]) for k in expected if k not in widened)
     wide.writer.close()
+    # the noise-widened bound of observed cells holds no weight: a run may add it to the file's net
+    clipped = run_config(*residual, "model.observed_bound=0.1").model
+    Reconstructor(build_generator(clipped), clipped, device="cpu").save(tmp_path / "clipped.pt")
+    expected = Reconstructor.load(tmp_path / "clipped.pt", device="cpu").generator.state_dict()
+    bounded = setup(run_config(*residual, "model.observed_bound=0.1", "model.observed_bound_noise=3",
+                               f"train.init_from={tmp_path / 'clipped.pt'}"), tmp_path / "bounded")
+    got = bounded.model.generator.state_dict()
+    assert all(torch.equal(got[k], expected[k]) for k in expected) and bounded.model.generator.noise_bound == 3.0
+    bounded.writer.close()
+    with pytest.raises(ValueError, match=r"model.observed_bound=0.1 \(the run: 0.2\)"):  # the bound itself is the net's
+        setup(run_config(*residual, "model.observed_bound=0.2", f"train.init_from={tmp_path / 'clipped.pt'}"), tmp_path / "b2")
 
     steps = ["train.steps=1", "train.val_every=1", "train.checkpoint_every=1", "train.image_every=1", "model.dropout=0.0"]
     first = train(run_config(*TINY, *steps), tmp_path / "resumed")

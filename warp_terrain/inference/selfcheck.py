@@ -42,6 +42,8 @@ from __future__ import annotations
 
 import torch
 
+from ..models.noise import NOISE_MAD, scan_noise  # noqa: F401  (the check's noise: re-exported)
+
 #: Share of a map's observed cells hidden for the check (the real-data suite hides 20 % too).
 CHECK_SHARE = 0.2
 #: Seed of the cells hidden: the same scan gets the same check, so predictions repeat.
@@ -271,34 +273,3 @@ def resolved_sigma_factor(predicted: torch.Tensor, sigma: torch.Tensor, measured
         resolved &= (noise.flatten() <= 0) | (quantile > floor)
     k = torch.where(resolved, k, torch.ones_like(k))
     return k.view(-1, 1, 1, 1).to(sigma.dtype), resolved
-
-
-#: A Gaussian's standard deviation over its median absolute deviation.
-NOISE_MAD = 1.4826
-
-
-def scan_noise(scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """(B, 1, 1, 1) metres: each map's per-cell measurement noise, estimated from the scan alone.
-
-    The second difference ``z[i-1] - 2 z[i] + z[i+1]`` of three observed cells in a row or a
-    column is zero on any plane, so on ground smooth at the cell's scale it is the noise's own:
-    for independent noise of standard deviation ``s`` its variance is ``6 s^2``. The estimate is
-    the robust one, ``1.4826 median|second difference| / sqrt(6)`` over both directions (the
-    median shrugs off the steps of walls and pit edges); 0 for a map with no three observed
-    cells in a line. What it cannot see is error that neighbouring cells share (a bias of the
-    projection along a ring): on clean simulated scans of the real suite's terrain and of the
-    synthetic settings it is 0.2-0.6 of the scan's true error, so it errs low, which leaves the
-    sigma wider rather than narrower; ground rough at the cell's own scale adds its curvature."""
-    observed = mask > 0
-    diffs = []
-    for dim in (2, 3):
-        length = scan.shape[dim] - 2
-        if length < 1:
-            continue
-        a, b, c = (scan.narrow(dim, i, length) for i in range(3))
-        both = observed.narrow(dim, 0, length) & observed.narrow(dim, 1, length) & observed.narrow(dim, 2, length)
-        diffs.append(torch.where(both, (a - 2.0 * b + c).abs().float(), torch.nan).flatten(1))
-    if not diffs:
-        return scan.new_zeros(scan.shape[0], 1, 1, 1)
-    median = torch.nanmedian(torch.cat(diffs, dim=1), dim=1).values.nan_to_num(0.0)
-    return (NOISE_MAD * median / 6.0**0.5).view(-1, 1, 1, 1).to(scan.dtype)

@@ -7,6 +7,7 @@ Pure torch: nothing here knows the simulator or the training loop.
 - `UNet` (unet.py): a conventional pix2pix U-Net for any size.
 - `PatchDiscriminator` (patchgan.py): the conditional 70x70 PatchGAN.
 - `GANLoss` (losses.py): vanilla (BCE on logits) or least-squares adversarial loss.
+- `scan_noise` (noise.py): a scan's own measurement noise, from its second differences.
 - `Pix2PixModel`, `build_model`, `build_generator`, `build_discriminator` (pix2pix.py).
 """
 

@@ -25,7 +25,8 @@ HEIGHT_LOSSES = ("l1", "l2")
 #: from another run's weights (``train.init_from``) must agree on every one. The rest (losses,
 #: learning rates, the discriminator) may change.
 GENERATOR_FIELDS = ("name", "in_channels", "out_channels", "ngf", "unet_depth", "refine", "norm", "dropout", "residual",
-                    "height_scale_min", "base_fill", "height_reference", "observed_bound", "screened_input", "uncertainty")
+                    "height_scale_min", "base_fill", "height_reference", "observed_bound", "observed_bound_noise", "screened_input",
+                    "uncertainty")
 
 
 @dataclass
@@ -77,6 +78,10 @@ class ModelConfig:
     # residual only: the most (m) the correction may move an observed cell (bound * tanh(c / bound));
     # 0 leaves observed cells free
     observed_bound: float = 0.0
+    # with observed_bound: each map's bound is at least this many times its scan's own noise
+    # (models/noise.py: from second differences of neighbouring observed cells), so a noisy scan
+    # may be denoised while a clean one keeps observed_bound; 0: observed_bound for every map
+    observed_bound_noise: float = 0.0
     # residual only: > 0 gives the net a second fill as a third input channel, the thin plate
     # screened by this k (1 / cells) towards the mean observed height: it returns to the mean
     # about 1 / k cells from the scan, where the base fill runs the slope on; 0: no second fill
@@ -123,6 +128,10 @@ class ModelConfig:
                 f"expected one of {', '.join(HEIGHT_REFERENCES)}")
         require(_is_number(self.observed_bound) and 0.0 <= self.observed_bound < float("inf"), "observed_bound",
                 self.observed_bound, "expected a finite number >= 0 (metres; 0 leaves observed cells free)")
+        require(_is_number(self.observed_bound_noise) and 0.0 <= self.observed_bound_noise < float("inf"), "observed_bound_noise",
+                self.observed_bound_noise, "expected a finite number >= 0 (times the scan's noise; 0: observed_bound alone)")
+        require(not self.observed_bound_noise or self.observed_bound > 0, "observed_bound_noise", self.observed_bound_noise,
+                "needs model.observed_bound > 0 (the bound it widens)")
         require(_is_number(self.screened_input) and 0.0 <= self.screened_input < float("inf"), "screened_input",
                 self.screened_input, "expected a finite number >= 0 (1 / cells; 0: no second fill)")
         require(not self.screened_input or self.residual, "screened_input", self.screened_input,

@@ -26,6 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from .biharmonic import biharmonic_fill, biharmonic_fills
+from .noise import scan_noise
 
 #: base fills a ``FillResidualGenerator`` can correct
 BASE_FILLS = ("push_pull", "biharmonic", "plane_biharmonic")
@@ -114,6 +115,9 @@ class FillResidualGenerator(nn.Module):
       metres) if that is > 0;
     - ``observed_bound`` > 0 (m): on observed cells the correction is at most this big
       (``bound * tanh(c / bound)``), so the map keeps what the sensor saw to within its error;
+      with ``noise_bound`` > 0 the bound of each map is at least that many times its scan's own
+      noise (:func:`~warp_terrain.models.noise.scan_noise`): a scan whose cells err by 20 cm may
+      be denoised, a clean one keeps ``observed_bound``;
     - ``screening`` > 0 (1 / cells): a third input channel, :func:`screened_fill` about the same
       reference and scale as the base fill (appended last, so a net trained without it widens
       by a zero column to exactly the same model).
@@ -121,7 +125,7 @@ class FillResidualGenerator(nn.Module):
     Output channels after the first (a log-variance) come back as ``net + 2 log s``."""
 
     def __init__(self, net: nn.Module, height_scale_min: float = 0.0, base: str = "push_pull", reference: str = "mean",
-                 observed_bound: float = 0.0, screening: float = 0.0):
+                 observed_bound: float = 0.0, screening: float = 0.0, noise_bound: float = 0.0):
         super().__init__()
         if base not in BASE_FILLS:
             raise ValueError(f"base fill {base!r}: expected one of {', '.join(BASE_FILLS)}")
@@ -133,6 +137,11 @@ class FillResidualGenerator(nn.Module):
             raise ValueError(f"screening must be a finite number >= 0 (1 / cells), got {screening}")
         self.base, self.reference, self.observed_bound = base, reference, float(observed_bound)
         self.screening = float(screening)
+        if not 0.0 <= noise_bound < float("inf"):
+            raise ValueError(f"noise_bound must be a finite number >= 0 (times the scan's noise), got {noise_bound}")
+        if noise_bound > 0 and self.observed_bound <= 0:
+            raise ValueError("noise_bound: needs observed_bound > 0 (the bound it may widen)")
+        self.noise_bound = float(noise_bound)
 
     def base_fill(self, scan: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The classical fill the net corrects (no gradient: it has no parameters)."""
@@ -175,6 +184,9 @@ class FillResidualGenerator(nn.Module):
         correction = scale * out[:, :1]
         if self.observed_bound > 0:
             bounded = self.observed_bound * torch.tanh(correction / self.observed_bound)
+            if self.noise_bound > 0:  # per map: at least noise_bound times the scan's own noise
+                bound = (self.noise_bound * scan_noise(scan, mask)).clamp_min(self.observed_bound)
+                bounded = bound * torch.tanh(correction / bound)
             correction = mask * bounded + (1.0 - mask) * correction
         height = fill + correction
         return height if out.shape[1] == 1 else torch.cat([height, out[:, 1:] + 2.0 * torch.log(scale)], dim=1)

@@ -56,7 +56,7 @@ def build_generator(cfg: ModelConfig | Mapping) -> nn.Module:
         if last.bias is not None:
             nn.init.zeros_(last.bias)
     return FillResidualGenerator(net, cfg.height_scale_min, cfg.base_fill, cfg.height_reference, cfg.observed_bound,
-                                 cfg.screened_input)
+                                 cfg.screened_input, cfg.observed_bound_noise)
 
 
 def build_discriminator(cfg: ModelConfig | Mapping) -> nn.Module:

@@ -238,8 +238,10 @@ def initial_weights(cfg: RunConfig) -> dict[str, torch.Tensor] | None:
         raise ValueError(f"train.init_from={source}: {err}") from None
     theirs, ours = rec.model_config, cfg.model
     widen = theirs.screened_input == 0 and ours.screened_input > 0  # the run adds the second fill: a zero column
+    # the noise-widened bound of observed cells holds no weight: a run may change it
+    free = {"observed_bound_noise"} | ({"screened_input"} if widen else set())
     differ = [f"{key}={getattr(theirs, key)!r} (the run: {getattr(ours, key)!r})" for key in GENERATOR_FIELDS
-              if getattr(theirs, key) != getattr(ours, key) and not (widen and key == "screened_input")]
+              if getattr(theirs, key) != getattr(ours, key) and key not in free]
     if differ:
         raise ValueError(f"train.init_from={source}: its generator is not the run's: model.{', model.'.join(differ)}")
     state = rec.generator.state_dict()

@@ -617,6 +617,22 @@ def test_package_model_cli_passes_every_check_flag(tmp_path, capsys):
     assert report["check_reach"] and report["check_membrane"] and report["check_keep_far"] and not report["check_sigma"]
     rec = Reconstructor.load(tmp_path / "all.pt", device="cpu")
     assert rec.self_check and rec.check_reach and rec.check_keep_far and rec.check_membrane and not rec.check_sigma
+    assert report["observed_bound_noise"] == 0.0 and rec.generator.noise_bound == 0.0  # as the checkpoint's model
+
+    # the bound on observed cells widened by the scan's noise: the same weights, the config and the generator's bound changed
+    assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "x.pt"), "--calibrate", "0",
+                 "--observed-bound-noise", "3"]) == 2
+    assert "observed_bound_noise=3.0: needs model.observed_bound > 0" in capsys.readouterr().err
+    assert not (tmp_path / "x.pt").exists()
+    bounded = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3, observed_bound=0.1).validate()
+    Reconstructor(build_generator(bounded), bounded, device="cpu").save(tmp_path / "bounded.pt")
+    assert main(["package-model", str(tmp_path / "bounded.pt"), "--out", str(tmp_path / "noise.pt"), "--calibrate", "0",
+                 "--observed-bound-noise", "3"]) == 0
+    assert json.loads(capsys.readouterr().out)["observed_bound_noise"] == 3.0
+    widened, source = Reconstructor.load(tmp_path / "noise.pt", device="cpu"), Reconstructor.load(tmp_path / "bounded.pt", device="cpu")
+    assert widened.model_config.observed_bound_noise == 3.0 and widened.generator.noise_bound == 3.0
+    state = source.generator.state_dict()
+    assert all(torch.equal(v, state[k]) for k, v in widened.generator.state_dict().items())
 
 
 def _push_pull_reconstructor(tensions) -> Reconstructor:

@@ -23,6 +23,7 @@ as the check fits the others: the factor that puts 68 % of their errors within 1
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from pathlib import Path
@@ -32,6 +33,7 @@ import torch
 from ..data.stream import make_pair, validation_seed
 from ..inference.reconstructor import Reconstructor
 from ..inference.selfcheck import CANDIDATE_TENSIONS, SIGMA_COVERAGE, THIN_PLATE_ONLY
+from ..models import build_generator
 from ..sim import SimConfig, as_sim_config
 
 #: First validation chunk used for calibration (training validates on chunks 0, 1, ...).
@@ -96,9 +98,24 @@ def fit_unresolved_sigma_scale(rec, sim: SimConfig, size: int = 256, device: str
     return rec.sigma_scale * float(torch.quantile(ratios.double(), coverage))
 
 
+def with_observed_bound_noise(rec, factor: float):
+    """``rec`` with its generator's bound on observed cells widened to ``factor`` times each
+    scan's noise (``model.observed_bound_noise``): the same weights, the config changed."""
+    if isinstance(factor, bool) or not isinstance(factor, (int, float)):
+        raise ValueError(f"observed_bound_noise={factor!r}: expected a finite number >= 0")
+    cfg = dataclasses.replace(rec.model_config, observed_bound_noise=float(factor)).validate()
+    if not cfg.residual:
+        raise ValueError("observed_bound_noise: needs a fill-residual model (model.residual=true)")
+    generator = build_generator(cfg)
+    generator.load_state_dict(rec.generator.state_dict())
+    return Reconstructor(generator, cfg, rec.meta, device=rec.device, tta=rec.tta, self_check=rec.self_check,
+                         check_reach=rec.check_reach, check_sigma=rec.check_sigma, check_keep_far=rec.check_keep_far,
+                         centre_cells=rec.centre_cells)
+
+
 def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False,
                   check_reach: bool = False, check_sigma: bool = False, check_membrane: bool = False,
-                  check_keep_far: bool = False) -> dict:
+                  check_keep_far: bool = False, observed_bound_noise: float | None = None) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
@@ -115,10 +132,14 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     ``check_keep_far``: far from the scan the check keeps the net's correction whole instead of
     weighing it on the outer cells (``meta["check_keep_far"]``); needs ``check_reach``.
 
+    ``observed_bound_noise`` (None: as the file's model is): the generator's bound on observed
+    cells widened to that many times each scan's noise (``model.observed_bound_noise``; it holds
+    no weight, so a net trained without it takes it as it is); needs ``model.observed_bound`` > 0.
+
     With ``check_sigma`` and ``calibrate`` the file also gets ``sigma_scale_unresolved``
     (:func:`fit_unresolved_sigma_scale` on the same pairs, checked as the file will check).
 
-    Returns ``{"out", "bytes", "step", "sigma_scale", "sigma_scale_unresolved", "self_check", "check_reach", "check_sigma", "check_membrane",
+    Returns ``{"out", "bytes", "step", "sigma_scale", "sigma_scale_unresolved", "observed_bound_noise", "self_check", "check_reach", "check_sigma", "check_membrane",
     "check_keep_far"}``
     (``sigma_scale`` None if not fitted).
     """
@@ -136,6 +157,8 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     if check_sigma and not self_check:
         raise ValueError("check_sigma: needs self_check (the sigma is scaled on the self-check's cells)")
     rec = Reconstructor.load(checkpoint, device=device, self_check=False)
+    if observed_bound_noise is not None:
+        rec = with_observed_bound_noise(rec, observed_bound_noise)
     if self_check and not hasattr(rec.generator, "base_fill"):
         raise ValueError(f"{str(checkpoint)!r}: self_check needs a fill-residual model (model.residual=true)")
     if check_sigma and not rec.has_uncertainty:
@@ -163,5 +186,6 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     rec.save(out)
     return {"out": str(out), "bytes": out.stat().st_size, "step": rec.meta.get("step"), "sigma_scale": rec.meta.get("sigma_scale"),
             "sigma_scale_unresolved": rec.meta.get("sigma_scale_unresolved"),
+            "observed_bound_noise": rec.model_config.observed_bound_noise,
             "self_check": bool(self_check), "check_reach": bool(check_reach), "check_sigma": bool(check_sigma),
             "check_membrane": bool(check_membrane), "check_keep_far": bool(check_keep_far)}

@@ -24,6 +24,9 @@ HEIGHT_LOSSES = ("l1", "l2")
 #: the fields that make a generator what it is (its layers, inputs and outputs); a run that starts
 #: from another run's weights (``train.init_from``) must agree on every one. The rest (losses,
 #: learning rates, the discriminator) may change.
+#: Generator fields that hold no weight: ``package-model`` may set them on a trained file and a
+#: run may start from a file that differs in them (``train.init_from``).
+UNWEIGHTED_FIELDS = ("observed_bound_noise",)
 GENERATOR_FIELDS = ("name", "in_channels", "out_channels", "ngf", "unet_depth", "refine", "norm", "dropout", "residual",
                     "height_scale_min", "base_fill", "height_reference", "observed_bound", "observed_bound_noise", "screened_input",
                     "uncertainty")

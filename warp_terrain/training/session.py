@@ -38,7 +38,7 @@ from ..evaluation.metrics import calibration, masked_rmse
 from ..inference.reconstructor import Reconstructor
 from ..models import Pix2PixModel, build_generator, build_model
 from ..models.centring import centre_cells
-from ..models.config import GENERATOR_FIELDS
+from ..models.config import GENERATOR_FIELDS, UNWEIGHTED_FIELDS
 from ..models.fill import fill_relative_weight, loss_weight_map, widen_to_screened_input
 from ..models.inputs import model_input
 from ..models.pix2pix import height_loss_power
@@ -238,8 +238,7 @@ def initial_weights(cfg: RunConfig) -> dict[str, torch.Tensor] | None:
         raise ValueError(f"train.init_from={source}: {err}") from None
     theirs, ours = rec.model_config, cfg.model
     widen = theirs.screened_input == 0 and ours.screened_input > 0  # the run adds the second fill: a zero column
-    # the noise-widened bound of observed cells holds no weight: a run may change it
-    free = {"observed_bound_noise"} | ({"screened_input"} if widen else set())
+    free = set(UNWEIGHTED_FIELDS) | ({"screened_input"} if widen else set())  # no weight: a run may change them
     differ = [f"{key}={getattr(theirs, key)!r} (the run: {getattr(ours, key)!r})" for key in GENERATOR_FIELDS
               if getattr(theirs, key) != getattr(ours, key) and key not in free]
     if differ:

@@ -377,6 +377,8 @@ def test_a_noisy_scans_observed_cells_may_move_by_its_noise():
             bound = max(0.1, 3.0 * float(scan_noise(x[:, :1], x[:, 1:])))
             assert moved[observed].max() <= bound + 1e-6 and moved[observed].max() > bound - 1e-3 and moved[~observed].max() > 1.0
             bounds.append(bound)
+            # a caller that has the scan's noise already (the Reconstructor, once for eight orientations) passes it
+            assert torch.equal(g(x, noise=scan_noise(x[:, :1], x[:, 1:])), g(x))
     assert bounds[0] == 0.1 and 0.5 < bounds[1] < 0.7
     with pytest.raises(ValueError, match="noise_bound: needs observed_bound > 0"):
         FillResidualGenerator(torch.nn.Conv2d(2, 1, 1), noise_bound=3.0)

@@ -248,7 +248,9 @@ class Reconstructor:
         fills = None
         if hasattr(self.generator, "base_fill"):
             bases, plain = self.generator.base_and_plain_fills(turned[:, :1], turned[:, 1:2], tensions, count=scan.shape[0])
-            outputs, fills = self.generator(turned, fill=bases), torch.cat([bases[None, : scan.shape[0]], plain])
+            # the scans' noise once, not per orientation (it is a median of second differences, which turning keeps)
+            noise = scan_noise(scan, mask).repeat(len(orientations), 1, 1, 1) if getattr(self.generator, "noise_bound", 0) else None
+            outputs, fills = self.generator(turned, fill=bases, noise=noise), torch.cat([bases[None, : scan.shape[0]], plain])
         else:
             outputs = self.generator(turned)
         heights, variances = [], []

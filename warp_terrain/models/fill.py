@@ -167,9 +167,11 @@ class FillResidualGenerator(nn.Module):
                 base = base + plane
             return base, torch.stack(fills) if fills else scan.new_zeros(0, count, *scan.shape[1:])
 
-    def forward(self, condition: torch.Tensor, fill: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, condition: torch.Tensor, fill: torch.Tensor | None = None, noise: torch.Tensor | None = None) -> torch.Tensor:
         """``fill``: the base fill of this condition if the caller has it already (the
-        Reconstructor computes it once for the eight orientations and the self-check)."""
+        Reconstructor computes it once for the eight orientations and the self-check); ``noise``
+        likewise, (B, 1, 1, 1) its scans' :func:`~warp_terrain.models.noise.scan_noise` (the same
+        in every orientation), used with ``noise_bound``."""
         scan, mask = condition[:, :1], condition[:, 1:2]
         fill = self.base_fill(scan, mask) if fill is None else fill
         reference = height_reference(scan, mask, self.reference)
@@ -185,7 +187,8 @@ class FillResidualGenerator(nn.Module):
         if self.observed_bound > 0:
             bounded = self.observed_bound * torch.tanh(correction / self.observed_bound)
             if self.noise_bound > 0:  # per map: at least noise_bound times the scan's own noise
-                bound = (self.noise_bound * scan_noise(scan, mask)).clamp_min(self.observed_bound)
+                noise = scan_noise(scan, mask) if noise is None else noise
+                bound = (self.noise_bound * noise).clamp_min(self.observed_bound)
                 bounded = bound * torch.tanh(correction / bound)
             correction = mask * bounded + (1.0 - mask) * correction
         height = fill + correction

@@ -10,7 +10,9 @@ fallback as good as the classical fills on sparse scans? (docs/transfer.md, stop
 fills (thin plate and membrane) ``CYCLES`` (default 1) V-cycles, ``VC=all`` the base fills too;
 two bounds on what a better solve can buy: ``VC=converged`` solves the check's thin plate with
 3,072 CG steps at the finest level (no V-cycle), ``VC=exact`` takes skimage's biharmonic and the
-exact harmonic fill (``evaluation.BASELINES``) as the check's thin plate and membrane.
+exact harmonic fill (``evaluation.BASELINES``) as the check's thin plate and membrane;
+``VC=fpcg`` gives the check's plain fills ``CYCLES`` iterations of flexible CG preconditioned by
+one V-cycle each (smoothing 2 + 2).
 
 The cascade of ``models/biharmonic.py`` starts each level from the one above and never returns
 to it, so the smooth part of its error in wide holes (between the rings of a sparse 32-beam
@@ -58,11 +60,10 @@ def _scripted_residual_cg(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, 
 
 
 @torch.jit.script
-def _scripted_v_cycle(u: torch.Tensor, free: torch.Tensor, a: torch.Tensor, t: torch.Tensor, pre: int, post: int,
+def _scripted_v_cycle(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, a: torch.Tensor, t: torch.Tensor, pre: int, post: int,
                       coarsest_steps: int, coarsest: int) -> torch.Tensor:
-    """One multigrid V-cycle on ``free * A u = 0`` (:func:`v_cycles`)."""
+    """One multigrid V-cycle on ``free * (A u - b) = 0`` from ``u`` (:func:`v_cycles`)."""
     stack: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = []
-    b = torch.zeros_like(u)
     while max(u.shape[-2], u.shape[-1]) > coarsest:
         u = _scripted_residual_cg(u, b, free, pre, a, t)
         r = free * (b - _scripted_operator(u, a, t, 0.0, 2))
@@ -105,7 +106,38 @@ def v_cycles(u: torch.Tensor, mask: torch.Tensor, cycles: int, tension: float | 
         a, t = (torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
     free = 1.0 - mask.to(u.dtype)
     for _ in range(cycles):
-        u = _scripted_v_cycle(u, free, a, t, int(smoothing[0]), int(smoothing[1]), int(coarsest_steps), COARSEST)
+        u = _scripted_v_cycle(u, torch.zeros_like(u), free, a, t, int(smoothing[0]), int(smoothing[1]), int(coarsest_steps), COARSEST)
+    return u
+
+
+def flexible_pcg(u: torch.Tensor, mask: torch.Tensor, iterations: int, tension: float | torch.Tensor = 0.0,
+                 smoothing: tuple[int, int] = (2, 2), coarsest_steps: int = CYCLE_COARSEST_STEPS) -> torch.Tensor:
+    """``iterations`` of flexible preconditioned CG on the fill ``u``, each residual preconditioned
+    by one V-cycle from zero (a CG smoother makes the cycle nonlinear, hence the flexible,
+    Polak-Ribiere, direction update)."""
+    if isinstance(tension, torch.Tensor):
+        a, t = (1.0 - tension).to(u.dtype), tension.to(u.dtype)
+    else:
+        a, t = (torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
+    free = 1.0 - mask.to(u.dtype)
+
+    def precondition(r):
+        return _scripted_v_cycle(torch.zeros_like(r), r, free, a, t, int(smoothing[0]), int(smoothing[1]), int(coarsest_steps), COARSEST)
+
+    def dot(x, y):
+        return (x * y).sum(dim=(1, 2, 3), keepdim=True)
+
+    r = -free * _scripted_operator(u, a, t, 0.0, 2)
+    z = precondition(r)
+    p, rz = z, dot(r, z)
+    for _ in range(iterations):
+        ap = free * _scripted_operator(p, a, t, 0.0, 2)
+        alpha = rz / dot(p, ap).clamp_min(1e-30)
+        u = u + alpha * p
+        r_new = r - alpha * ap
+        z = precondition(r_new)
+        p = z + dot(z, r_new - r) / rz.clamp_min(1e-30) * p
+        r, rz = r_new, dot(r_new, z)
     return u
 
 
@@ -129,7 +161,8 @@ def patched(original, mode: str, cycles: int):
             k = len(tensions)
             flat = plain.reshape(k * count, *plain.shape[2:])
             tension = torch.tensor([float(t) for t in tensions for _ in range(count)], dtype=scan.dtype).view(-1, 1, 1, 1)
-            plain = v_cycles(flat, mask[:count].repeat(k, 1, 1, 1), cycles, tension=tension).reshape(plain.shape)
+            solve = flexible_pcg if mode == "fpcg" else v_cycles
+            plain = solve(flat, mask[:count].repeat(k, 1, 1, 1), cycles, tension=tension).reshape(plain.shape)
         return base, plain
 
     return base_and_plain_fills
@@ -138,10 +171,10 @@ def patched(original, mode: str, cycles: int):
 if __name__ == "__main__":
     tools = {"unseen": "tools/probes/unseen_real.py", "real": "tools/real_ablation.py"}
     if len(sys.argv) < 2 or sys.argv[1] not in tools:
-        sys.exit("usage: [VC=cands|all|converged|exact] [CYCLES=N] python tools/probes/check_cycles.py unseen|real ARGS ...")
+        sys.exit("usage: [VC=cands|all|converged|exact|fpcg] [CYCLES=N] python tools/probes/check_cycles.py unseen|real ARGS ...")
     mode = os.environ.get("VC", "cands")
-    if mode not in ("cands", "all", "converged", "exact"):
-        sys.exit(f"VC must be cands, all, converged or exact, got {mode!r}")
+    if mode not in ("cands", "all", "converged", "exact", "fpcg"):
+        sys.exit(f"VC must be cands, all, converged, exact or fpcg, got {mode!r}")
     FillResidualGenerator.base_and_plain_fills = patched(FillResidualGenerator.base_and_plain_fills, mode, int(os.environ.get("CYCLES", "1")))
     tool = tools[sys.argv[1]]
     sys.path.insert(0, "tools")

@@ -84,6 +84,13 @@ def _scripted_v_cycle(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, a: t
     return u
 
 
+def _coefficients(u: torch.Tensor, tension: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(1 - t, t)`` as tensors of ``u``'s dtype: a number, or one per map (B, 1, 1, 1)."""
+    if isinstance(tension, torch.Tensor):
+        return (1.0 - tension).to(u.dtype), tension.to(u.dtype)
+    return tuple(torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
+
+
 def v_cycles(u: torch.Tensor, mask: torch.Tensor, cycles: int, tension: float | torch.Tensor = 0.0,
              smoothing: tuple[int, int] = CYCLE_SMOOTHING, coarsest_steps: int = CYCLE_COARSEST_STEPS) -> torch.Tensor:
     """``cycles`` multigrid V-cycles on a fill ``u`` (B, 1, H, W) of the cells ``mask`` leaves
@@ -100,10 +107,7 @@ def v_cycles(u: torch.Tensor, mask: torch.Tensor, cycles: int, tension: float | 
         raise ValueError(f"cycles must be an integer >= 0, got {cycles!r}")
     if cycles == 0:
         return u
-    if isinstance(tension, torch.Tensor):
-        a, t = (1.0 - tension).to(u.dtype), tension.to(u.dtype)
-    else:
-        a, t = (torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
+    a, t = _coefficients(u, tension)
     free = 1.0 - mask.to(u.dtype)
     for _ in range(cycles):
         u = _scripted_v_cycle(u, torch.zeros_like(u), free, a, t, int(smoothing[0]), int(smoothing[1]), int(coarsest_steps), COARSEST)
@@ -115,10 +119,7 @@ def flexible_pcg(u: torch.Tensor, mask: torch.Tensor, iterations: int, tension: 
     """``iterations`` of flexible preconditioned CG on the fill ``u``, each residual preconditioned
     by one V-cycle from zero (a CG smoother makes the cycle nonlinear, hence the flexible,
     Polak-Ribiere, direction update)."""
-    if isinstance(tension, torch.Tensor):
-        a, t = (1.0 - tension).to(u.dtype), tension.to(u.dtype)
-    else:
-        a, t = (torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
+    a, t = _coefficients(u, tension)
     free = 1.0 - mask.to(u.dtype)
 
     def precondition(r):

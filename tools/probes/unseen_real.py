@@ -8,7 +8,8 @@ other sensors and serial numbers than the suite's OS-1 and OS-2; no shipped reci
 them), each scored as the suite scores its real scans (a fifth of the observed cells hidden, 3
 repeats), and the suite's real rasters at other scales than the suite's and the training's
 (mammoth 1:2, Finland 1:10, Jacksboro 1:40: other slopes and feature sizes). Prints each model's
-unobserved RMSE over the best classical fill's and its share of scored cells within 1 sigma.
+unobserved RMSE over the best classical fill's and its share of scored cells within 1 sigma
+(``real_ablation.report``: per family, then as table rows).
 NAME and MODEL as in tools/real_ablation.py (the name's tokens pick the check); `--only WORD`
 scores only the families whose name holds WORD (repeatable).
 """
@@ -21,7 +22,7 @@ import torch
 
 from warp_terrain.evaluation import real
 from warp_terrain.evaluation.baselines import BASELINES
-from warp_terrain.evaluation.real import RealFamily, evaluate_real, headline
+from warp_terrain.evaluation.real import RealFamily, evaluate_real
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 import real_ablation  # noqa: E402
@@ -49,17 +50,7 @@ def main() -> None:
     nets = real_ablation.models(args.models)
     results = evaluate_real({**BASELINES, **nets}, size=32, repeats=3, device="cpu", synthetic=False,
                             progress=lambda line: "left out" in line or print(line, flush=True))
-    print("\nfamily | best fill | its RMSE (m) | " + " | ".join(f"{n} / best (within 1 sigma)" for n in nets))
-    for entry in results["families"]:
-        key = headline(entry)
-        rmse = {m: v[key] for m, v in entry["metrics"].items()}
-        best = min((m for m in rmse if m in BASELINES), key=rmse.get)
-        cells = []
-        for n in nets:
-            within = entry["metrics"][n].get("within_1sigma")
-            cells.append(f"{rmse[n] / rmse[best]:.2f}" + ("" if within is None else f" ({100 * within:.0f} %)"))
-        print(f"| {entry['family']} | {best} | {rmse[best]:.4f} | " + " | ".join(cells) + " |")
-
+    real_ablation.report(results, {}, list(nets))
 
 if __name__ == "__main__":
     main()

@@ -740,8 +740,9 @@ def test_the_thinned_map_is_moved_towards_the_membrane_and_weighs_the_correction
 
 
 def test_the_check_measures_each_masks_distance_to_the_scan_once(monkeypatch):
-    """The far share of the full mask and of the thinned one are each computed once per check
-    (the check blends with them five times), and the maps are those of a fresh share each time."""
+    """The far shares of the full mask and of the thinned one are computed once per check, both
+    in one batched call (the check blends with them five times), and the maps are those of a
+    fresh share each time."""
     import warp_terrain.inference.selfcheck as selfcheck
 
     scan, mask, _ = plane_scan()
@@ -757,7 +758,8 @@ def test_the_check_measures_each_masks_distance_to_the_scan_once(monkeypatch):
 
     monkeypatch.setattr(selfcheck, "far_share", counted)
     assert torch.equal(rec.predict_maps(scan, mask), expected)
-    assert len(calls) == 2 and not torch.equal(calls[0], calls[1])
+    assert len(calls) == 1 and calls[0].shape[0] == 2 * mask.shape[0] and torch.equal(calls[0][:1], mask)
+    assert not torch.equal(calls[0][:1], calls[0][1:])  # the full mask, then the thinned one
 
 
 def test_a_pair_of_weights_holds_at_each_cell_by_the_maps_far_share():
@@ -780,3 +782,59 @@ def test_a_pair_of_weights_holds_at_each_cell_by_the_maps_far_share():
     torch.testing.assert_close(got[far == 0], near.expand_as(got)[far == 0], rtol=0, atol=0)
     torch.testing.assert_close(got[far == 1], away.expand_as(got)[far == 1], rtol=0, atol=0)
     assert regimes.at((near, None), mask) is near
+
+
+def test_the_check_weighs_thin_plates_finished_by_v_cycles_and_leaves_the_membrane():
+    """A bowl seen on three wide rings: the cascade stops short of the thin plate between them.
+    With ``check_cycles`` the check's thin plates (of the scan and of its thinned copy) get that
+    many V-cycles: a zero correction over push-pull, which the check refutes, returns the full
+    scan's thin plate finished by exactly those cycles, nearer the direct solve than without;
+    the membrane is not touched (it converges in the cascade)."""
+    from test_biharmonic import exact_fill, wide_rings
+
+    from warp_terrain.models.biharmonic import biharmonic_fill, v_cycles
+
+    size = 48
+    r, c = torch.meshgrid(torch.arange(size, dtype=torch.float32), torch.arange(size, dtype=torch.float32), indexing="ij")
+    truth = (0.002 * ((r - 20.0) ** 2 + (c - 26.0) ** 2) + 0.01 * r)[None, None]
+    mask = torch.from_numpy(wide_rings(size, 2)).float()[None, None]
+    scan = truth * mask
+    exact = torch.from_numpy(exact_fill(scan[0, 0].numpy().astype(np.float64), mask[0, 0].numpy() > 0, 0.0)).float()
+    cascade = biharmonic_fill(scan, mask)
+    free = mask == 0
+    rec = _push_pull_reconstructor((0.0,))
+    assert rec.check_cycles == 0  # a file that does not name them checks without them
+    torch.testing.assert_close(rec.predict_maps(scan, mask), cascade, rtol=0, atol=1e-5)
+    rec.check_cycles = 3
+    checked = rec.predict_maps(scan, mask)
+    torch.testing.assert_close(checked, v_cycles(cascade, mask, 3), rtol=0, atol=1e-5)
+    assert float((checked - exact)[free].abs().max()) < 0.5 * float((cascade - exact)[free].abs().max())
+
+    plain = torch.stack([cascade, biharmonic_fill(scan, mask, tension=1.0)])
+    cycled = rec._cycled(plain, mask, (0.0, 1.0))
+    torch.testing.assert_close(cycled[0], v_cycles(cascade, mask, 3), rtol=0, atol=0)
+    assert torch.equal(cycled[1], plain[1]) and not torch.equal(cycled[0], plain[0])
+
+
+def test_package_model_records_check_cycles_and_refuses_bad_ones(tmp_path, capsys):
+    import json
+
+    from warp_terrain.cli import main
+    from warp_terrain.evaluation.calibrate import package_model
+    from warp_terrain.models.pix2pix import build_generator
+
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
+    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "cycles.pt"), "--calibrate", "0",
+                 "--self-check", "--check-cycles", "2"]) == 0
+    assert json.loads(capsys.readouterr().out)["check_cycles"] == 2
+    assert Reconstructor.load(tmp_path / "cycles.pt", device="cpu").check_cycles == 2
+    assert Reconstructor.load(tmp_path / "cycles.pt", device="cpu", check_cycles=0).check_cycles == 0
+    assert Reconstructor.load(tmp_path / "residual.pt", device="cpu").check_cycles == 0
+    with pytest.raises(ValueError, match="check_cycles: needs self_check"):
+        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, check_cycles=1)
+    with pytest.raises(ValueError, match="check_cycles=-1: must be an integer >= 0"):
+        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, self_check=True, check_cycles=-1)
+    assert not (tmp_path / "x.pt").exists()
+    with pytest.raises(ValueError, match="check_cycles must be an integer >= 0"):
+        Reconstructor.load(tmp_path / "residual.pt", device="cpu", check_cycles=-2)

@@ -7,7 +7,8 @@ usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL 
   check's per-map sigma on / off (else as the file says), `_notta` the 8-orientation average
   off, `_nomembrane` the check's membrane candidate off (the thin plate alone beside the base
   fill), `_keepfar` / `_nokeepfar` the check's correction kept whole far from the scan on / off
-  (else as the file says). The classical fills are scored too; with --fills-cache their scores are read from FILE
+  (else as the file says), `_cyclesN` N multigrid V-cycles on the check's thin plates (else as the file
+  says). The classical fills are scored too; with --fills-cache their scores are read from FILE
   when it exists (the fills are deterministic: same seeds, same maps) and written to it when
   not. Writes tools/real_ablation_<names>.json and prints, per family, each model's RMSE over
   the best classical fill's and its share of scored cells within 1 sigma, then one markdown
@@ -18,6 +19,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 
 import torch
 
@@ -41,6 +43,11 @@ def flag(name: str, key: str):
     return False if f"_no{key}" in name else (True if f"_{key}" in name else None)
 
 
+def cycles(name: str) -> int | None:
+    found = re.search(r"_cycles(\d+)", name)
+    return None if found is None else int(found.group(1))
+
+
 def models(args) -> dict:
     out = {}
     for arg in args:
@@ -48,7 +55,7 @@ def models(args) -> dict:
         file = None if path == "shipped" else path
         rec = Reconstructor.load(file, device="cpu", tta="_notta" not in name, self_check="_check" in name,
                                  check_reach=flag(name, "reach"), check_sigma=flag(name, "sigma"),
-                                 check_keep_far=flag(name, "keepfar"))
+                                 check_keep_far=flag(name, "keepfar"), check_cycles=cycles(name))
         if flag(name, "membrane") is not None:
             rec.check_tensions = CANDIDATE_TENSIONS if flag(name, "membrane") else THIN_PLATE_ONLY
         out[name] = reconstructor_predictor(rec, 16, file)

@@ -14,14 +14,10 @@ exact harmonic fill (``evaluation.BASELINES``) as the check's thin plate and mem
 ``VC=fpcg`` gives the check's plain fills ``CYCLES`` iterations of flexible CG preconditioned by
 one V-cycle each (smoothing 2 + 2).
 
-The cascade of ``models/biharmonic.py`` starts each level from the one above and never returns
-to it, so the smooth part of its error in wide holes (between the rings of a sparse 32-beam
-scan) decays only as fast as CG at the finest level reduces it. A V-cycle smooths with a few
-CG steps, hands the residual down the pyramid (a coarse cell free where all four fine cells
-are; the operator rescaled to coarse cells), solves the coarsest level, and adds each level's
-correction back at the step that minimises the energy, so no cycle can raise it. Bilinear
-transfers are of too low an order for a fourth-order operator: the pure thin plate converges
-slowly (a tension > 0 fast), which is why this stays a probe.
+The V-cycles are ``models.biharmonic.v_cycles`` (since stop 40 the shipped file runs one on the
+check's thin plates: ``Reconstructor.check_cycles``; load the file with ``check_cycles=0`` to
+compare, or name ``_cycles0`` in tools/real_ablation.py); this probe gives them to the membrane
+too (``VC=cands``), to the base fill (``VC=all``), or swaps them for flexible CG (``VC=fpcg``).
 """
 
 import os
@@ -29,59 +25,10 @@ import runpy
 import sys
 
 import torch
-import torch.nn.functional as F
 
 from warp_terrain.evaluation.baselines import BASELINES
-from warp_terrain.models.biharmonic import COARSEST, _scripted_operator, biharmonic_fill
+from warp_terrain.models.biharmonic import COARSEST, CYCLE_COARSEST_STEPS, _scripted_operator, _scripted_v_cycle, biharmonic_fill, v_cycles
 from warp_terrain.models.fill import FillResidualGenerator, observed_plane
-
-#: V-cycles after the cascade: CG steps before and after each coarse correction, and CG steps
-#: on a cycle's coarsest level (at most 8 cells a side: a few dozen unknowns).
-CYCLE_SMOOTHING = (4, 4)
-CYCLE_COARSEST_STEPS = 16  # the probe's figures: smoothing (4, 4), 16 steps, one cycle
-
-
-@torch.jit.script
-def _scripted_residual_cg(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, steps: int, a: torch.Tensor,
-                          t: torch.Tensor) -> torch.Tensor:
-    """``steps`` CG iterations on ``free * (A u - b) = 0`` from ``u``, ``A = a L L - t L``."""
-    r = free * (b - _scripted_operator(u, a, t, 0.0, 2))
-    p = r
-    rr = (r * r).sum(dim=(1, 2, 3), keepdim=True)
-    for _ in range(steps):
-        ap = free * _scripted_operator(p, a, t, 0.0, 2)
-        alpha = rr / (p * ap).sum(dim=(1, 2, 3), keepdim=True).clamp_min(1e-30)
-        u = torch.addcmul(u, alpha, p)
-        r = torch.addcmul(r, alpha, ap, value=-1.0)
-        rr_new = (r * r).sum(dim=(1, 2, 3), keepdim=True)
-        p = torch.addcmul(r, rr_new / rr.clamp_min(1e-30), p)
-        rr = rr_new
-    return u
-
-
-@torch.jit.script
-def _scripted_v_cycle(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, a: torch.Tensor, t: torch.Tensor, pre: int, post: int,
-                      coarsest_steps: int, coarsest: int) -> torch.Tensor:
-    """One multigrid V-cycle on ``free * (A u - b) = 0`` from ``u`` (:func:`v_cycles`)."""
-    stack: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = []
-    while max(u.shape[-2], u.shape[-1]) > coarsest:
-        u = _scripted_residual_cg(u, b, free, pre, a, t)
-        r = free * (b - _scripted_operator(u, a, t, 0.0, 2))
-        stack.append((u, b, free, a, t, r))
-        b = F.avg_pool2d(r, 2, ceil_mode=True)  # the residual per coarse cell
-        free = 1.0 - F.max_pool2d(1.0 - free, 2, ceil_mode=True)  # free where all four fine cells are
-        u = torch.zeros_like(b)
-        a, t = a / 16.0, t / 4.0  # L L and L in coarse cells, as fine cells' residuals
-    u = _scripted_residual_cg(u, b, free, coarsest_steps, a, t)
-    for i in range(len(stack) - 1, -1, -1):
-        fine, b, free, a, t, r = stack[i]
-        e = F.interpolate(u, scale_factor=2.0, mode="bilinear", align_corners=False)
-        e = free * e[:, :, : fine.shape[-2], : fine.shape[-1]]
-        # the step along the correction that minimises the energy: a cycle never makes it worse
-        step = (r * e).sum(dim=(1, 2, 3), keepdim=True) / (e * free * _scripted_operator(e, a, t, 0.0, 2)).sum(
-            dim=(1, 2, 3), keepdim=True).clamp_min(1e-30)
-        u = _scripted_residual_cg(torch.addcmul(fine, step, e), b, free, post, a, t)
-    return u
 
 
 def _coefficients(u: torch.Tensor, tension: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -89,29 +36,6 @@ def _coefficients(u: torch.Tensor, tension: float | torch.Tensor) -> tuple[torch
     if isinstance(tension, torch.Tensor):
         return (1.0 - tension).to(u.dtype), tension.to(u.dtype)
     return tuple(torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
-
-
-def v_cycles(u: torch.Tensor, mask: torch.Tensor, cycles: int, tension: float | torch.Tensor = 0.0,
-             smoothing: tuple[int, int] = CYCLE_SMOOTHING, coarsest_steps: int = CYCLE_COARSEST_STEPS) -> torch.Tensor:
-    """``cycles`` multigrid V-cycles on a fill ``u`` (B, 1, H, W) of the cells ``mask`` leaves
-    free, the observed cells held: a fill the cascade of :func:`biharmonic_fill` left short of
-    convergence, solved further. The cascade starts each level from the one above but never
-    returns to it, so the smooth part of its error in wide holes (between the rings of a sparse
-    scan) decays only as fast as CG at the finest level reduces it; a cycle smooths with
-    ``smoothing`` CG steps, hands the residual down the pyramid (a coarse cell free where all
-    four of its fine cells are; the operator rescaled to the coarse cells), solves the coarsest
-    level and brings each level's correction back up, each added at the step that minimises the
-    energy, so no cycle can raise it. ``tension`` as :func:`biharmonic_fill` (no screening).
-    TorchScript: the check's candidates run it at inference, not the exported model."""
-    if not (isinstance(cycles, int) and cycles >= 0):
-        raise ValueError(f"cycles must be an integer >= 0, got {cycles!r}")
-    if cycles == 0:
-        return u
-    a, t = _coefficients(u, tension)
-    free = 1.0 - mask.to(u.dtype)
-    for _ in range(cycles):
-        u = _scripted_v_cycle(u, torch.zeros_like(u), free, a, t, int(smoothing[0]), int(smoothing[1]), int(coarsest_steps), COARSEST)
-    return u
 
 
 def flexible_pcg(u: torch.Tensor, mask: torch.Tensor, iterations: int, tension: float | torch.Tensor = 0.0,

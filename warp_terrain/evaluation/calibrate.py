@@ -115,7 +115,7 @@ def with_observed_bound_noise(rec, factor: float):
 
 def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False,
                   check_reach: bool = False, check_sigma: bool = False, check_membrane: bool = False,
-                  check_keep_far: bool = False, observed_bound_noise: float | None = None) -> dict:
+                  check_keep_far: bool = False, observed_bound_noise: float | None = None, check_cycles: int = 0) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
@@ -131,6 +131,8 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     ``selfcheck.checked_maps``); needs ``self_check``.
     ``check_keep_far``: far from the scan the check keeps the net's correction whole instead of
     weighing it on the outer cells (``meta["check_keep_far"]``); needs ``check_reach``.
+    ``check_cycles``: multigrid V-cycles on the thin plates the check weighs, after the cascade
+    (``meta["check_cycles"]``, ``biharmonic.v_cycles``); needs ``self_check``.
 
     ``observed_bound_noise`` (None: as the file's model is): the generator's bound on observed
     cells widened to that many times each scan's noise (``model.observed_bound_noise``; it holds
@@ -140,7 +142,7 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     (:func:`fit_unresolved_sigma_scale` on the same pairs, checked as the file will check).
 
     Returns ``{"out", "bytes", "step", "sigma_scale", "sigma_scale_unresolved", "observed_bound_noise", "self_check", "check_reach", "check_sigma", "check_membrane",
-    "check_keep_far"}``
+    "check_keep_far", "check_cycles"}``
     (``sigma_scale`` None if not fitted).
     """
     if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
@@ -154,6 +156,10 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
         raise ValueError("check_keep_far: needs check_reach (it sets the check's weight far from the scan)")
     if check_membrane and not self_check:
         raise ValueError("check_membrane: needs self_check (the membrane is one of the self-check's fills)")
+    if isinstance(check_cycles, bool) or not isinstance(check_cycles, int) or check_cycles < 0:
+        raise ValueError(f"check_cycles={check_cycles!r}: must be an integer >= 0")
+    if check_cycles and not self_check:
+        raise ValueError("check_cycles: needs self_check (the cycles solve the self-check's thin plates further)")
     if check_sigma and not self_check:
         raise ValueError("check_sigma: needs self_check (the sigma is scaled on the self-check's cells)")
     rec = Reconstructor.load(checkpoint, device=device, self_check=False)
@@ -174,6 +180,7 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     rec.meta["check_sigma"] = bool(check_sigma)
     rec.meta["check_keep_far"] = bool(check_keep_far)
     rec.meta["check_tensions"] = list(CANDIDATE_TENSIONS if check_membrane else THIN_PLATE_ONLY)
+    rec.meta["check_cycles"] = int(check_cycles)
     if not check_sigma:
         rec.meta.pop("sigma_scale_unresolved", None)
     elif calibrate:  # the fallback of the maps the check cannot resolve, fitted on them as the file checks them
@@ -188,4 +195,4 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
             "sigma_scale_unresolved": rec.meta.get("sigma_scale_unresolved"),
             "observed_bound_noise": rec.model_config.observed_bound_noise,
             "self_check": bool(self_check), "check_reach": bool(check_reach), "check_sigma": bool(check_sigma),
-            "check_membrane": bool(check_membrane), "check_keep_far": bool(check_keep_far)}
+            "check_membrane": bool(check_membrane), "check_keep_far": bool(check_keep_far), "check_cycles": int(check_cycles)}

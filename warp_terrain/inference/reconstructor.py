@@ -14,6 +14,7 @@ import torch
 from ..core.geometry import MAP_SIZE, MapGeometry
 from ..core.torchfile import atomic_save, read_error
 from ..models import ModelConfig, build_generator
+from ..models.biharmonic import v_cycles
 from ..models.centring import centre_cells
 from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
@@ -91,7 +92,7 @@ class Reconstructor:
 
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
                  self_check: bool | None = None, check_reach: bool | None = None, check_sigma: bool | None = None,
-                 check_keep_far: bool | None = None, centre_cells: bool | None = None):
+                 check_keep_far: bool | None = None, centre_cells: bool | None = None, check_cycles: int | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
         if self.device == "cpu":
@@ -118,6 +119,11 @@ class Reconstructor:
         # the plain fills the check weighs beside the base fill, by tension (thin plate 0, membrane 1):
         # as the model file says (``meta["check_tensions"]``); files from before the membrane: the thin plate only
         self.check_tensions = tuple(float(t) for t in self.meta.get("check_tensions", THIN_PLATE_ONLY))
+        # multigrid V-cycles on the thin plates the check weighs, after the cascade (``v_cycles``):
+        # as the file says (``meta["check_cycles"]``); files from before them: none
+        self.check_cycles = int(self.meta.get("check_cycles", 0)) if check_cycles is None else check_cycles
+        if isinstance(self.check_cycles, bool) or not isinstance(self.check_cycles, int) or self.check_cycles < 0:
+            raise ValueError(f"check_cycles must be an integer >= 0, got {self.check_cycles!r}")
         # a cloud's cells moved to their centres before the model sees them (``reconstruct*`` only):
         # as the file says, else as the model was trained (``model.centre_cells``)
         trained = bool(self.meta.get("centre_cells", model_config.centre_cells))
@@ -127,7 +133,7 @@ class Reconstructor:
     @classmethod
     def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None,
              check_reach: bool | None = None, check_sigma: bool | None = None, check_keep_far: bool | None = None,
-             centre_cells: bool | None = None) -> Reconstructor:
+             centre_cells: bool | None = None, check_cycles: int | None = None) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")
@@ -145,7 +151,7 @@ class Reconstructor:
             raise ValueError(f"model file {str(path)!r} holds neither a Reconstructor nor a training checkpoint")
         generator = build_generator(cfg)
         generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
-        return cls(generator, cfg, meta, device, tta, self_check, check_reach, check_sigma, check_keep_far, centre_cells)
+        return cls(generator, cfg, meta, device, tta, self_check, check_reach, check_sigma, check_keep_far, centre_cells, check_cycles)
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
@@ -219,13 +225,16 @@ class Reconstructor:
         # the scan and its thinned copy go through the net, and their classical fills through one solve, together
         n = scan.shape[0]
         both_scans, both_masks = torch.cat([scan, scan * thinned]), torch.cat([mask, thinned])
-        heights, sigmas, fills = self._predict(both_scans, both_masks, self.check_tensions)
-        regimes = Regimes(hidden, outer if self.check_reach else None)
+        # both scans' noise once: the generator's bound takes both, the sigma the full scans' (each map's own median)
+        needs_noise = bool(getattr(self.generator, "noise_bound", 0)) or (self.check_sigma and self.has_uncertainty)
+        noise = scan_noise(both_scans, both_masks) if needs_noise else None
+        heights, sigmas, fills = self._predict(both_scans, both_masks, self.check_tensions, noise=noise)
+        regimes = Regimes(hidden, outer if self.check_reach else None, masks=(mask, thinned))
         height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, self.check_membrane,
                                               self.check_keep_far)
         sigma, factors = None if sigmas is None else sigmas[:n], None
         if sigma is not None and self.check_sigma:  # measured on the cells the thinned map did not see, per regime
-            factor = partial(resolved_sigma_factor, noise=scan_noise(scan, mask))  # about the ground, not the scan's noise
+            factor = partial(resolved_sigma_factor, noise=noise[:n])  # about the ground, not the scan's noise
             factors = regimes.measure(factor, height_thinned, sigmas[n:], scan)
         return CheckedMaps(height, sigma, regimes, factors)
 
@@ -234,13 +243,14 @@ class Reconstructor:
         """Whether the check weighs the membrane (the last of ``check_tensions`` is 1, after the thin plate)."""
         return len(self.check_tensions) > 1 and self.check_tensions[-1] == 1.0
 
-    def _predict(self, scan: torch.Tensor, mask: torch.Tensor, tensions: tuple[float, ...] = ()
+    def _predict(self, scan: torch.Tensor, mask: torch.Tensor, tensions: tuple[float, ...] = (), noise: torch.Tensor | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """``(height, sigma, fills)``: the generator's maps averaged over the orientations, and
         (None for a generator without a base fill) the classical fills of the maps as they are,
         (1 + len(tensions), B, 1, S, S): the base fill, then the plain fill under each of
         ``tensions``, solved with the orientations' base fills in one batch; the self-check
-        weighs them instead of solving them again."""
+        weighs them instead of solving them again. ``noise``: the scans' ``scan_noise`` if the
+        caller has it (else computed here when the generator's bound needs it)."""
         orientations = DIHEDRAL if self.tta else DIHEDRAL[:1]  # DIHEDRAL[0]: as the map is
         # all orientations as one batch (the generator is in eval mode: maps do not interact)
         condition = self.condition(scan, mask)
@@ -248,8 +258,12 @@ class Reconstructor:
         fills = None
         if hasattr(self.generator, "base_fill"):
             bases, plain = self.generator.base_and_plain_fills(turned[:, :1], turned[:, 1:2], tensions, count=scan.shape[0])
+            plain = self._cycled(plain, mask, tensions)
             # the scans' noise once, not per orientation (it is a median of second differences, which turning keeps)
-            noise = scan_noise(scan, mask).repeat(len(orientations), 1, 1, 1) if getattr(self.generator, "noise_bound", 0) else None
+            if getattr(self.generator, "noise_bound", 0):
+                noise = (scan_noise(scan, mask) if noise is None else noise).repeat(len(orientations), 1, 1, 1)
+            else:
+                noise = None
             outputs, fills = self.generator(turned, fill=bases, noise=noise), torch.cat([bases[None, : scan.shape[0]], plain])
         else:
             outputs = self.generator(turned)
@@ -262,6 +276,20 @@ class Reconstructor:
         height = torch.stack(heights).mean(dim=0)
         sigma = self.sigma_scale * torch.stack(variances).mean(dim=0).sqrt() if variances else None
         return height, sigma, fills
+
+    def _cycled(self, plain: torch.Tensor, mask: torch.Tensor, tensions: tuple[float, ...]) -> torch.Tensor:
+        """The plain fills (len(tensions), B, 1, S, S) of maps observed at ``mask``, each thin plate
+        (tension 0) given ``check_cycles`` multigrid V-cycles (``v_cycles``): the cascade stops short
+        of the thin plate in wide gaps between a sparse scan's rings, and there the check would
+        weigh an unfinished fill (docs/transfer.md, stop 40). The membrane converges in the
+        cascade and is left as it is."""
+        thin = [i for i, t in enumerate(tensions) if t == 0.0]
+        if not self.check_cycles or not thin:
+            return plain
+        plain = plain.clone()
+        plain[thin] = v_cycles(plain[thin].flatten(0, 1), mask.repeat(len(thin), 1, 1, 1), self.check_cycles).view(
+            len(thin), *plain.shape[1:])
+        return plain
 
     @property
     def geometry(self) -> MapGeometry:

@@ -110,11 +110,14 @@ class Regimes:
     on the outer cells (``None`` without the reach); a map's weight at a cell is
     ``near (1 - far) + away far`` with ``far = far_share(mask)`` of the map the weight is used on
     (computed once per mask: a check blends the full scan's maps three times and the thinned
-    scan's twice)."""
+    scan's twice; ``masks``, when given, all at once)."""
 
-    def __init__(self, hidden: torch.Tensor, outer: torch.Tensor | None):
+    def __init__(self, hidden: torch.Tensor, outer: torch.Tensor | None, masks: tuple[torch.Tensor, ...] = ()):
         self.hidden, self.outer = hidden, outer
         self._far: list[tuple[torch.Tensor, torch.Tensor]] = []
+        if outer is not None and masks:  # the masks the weights will be used on: their far shares in one batch
+            shares = far_share(torch.cat(masks)).split([m.shape[0] for m in masks])
+            self._far = list(zip(masks, shares))
 
     def measure(self, statistic, *args):
         """``(near, away)``: ``statistic(*args, cells)`` on the hidden cells and on the outer ones."""

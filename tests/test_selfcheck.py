@@ -789,7 +789,7 @@ def test_the_check_weighs_thin_plates_finished_by_v_cycles_and_leaves_the_membra
     With ``check_cycles`` the check's thin plates (of the scan and of its thinned copy) get that
     many V-cycles: a zero correction over push-pull, which the check refutes, returns the full
     scan's thin plate finished by exactly those cycles, nearer the direct solve than without;
-    the membrane is not touched (it converges in the cascade)."""
+    the membrane is not touched (the cascade nearly finishes it)."""
     from test_biharmonic import exact_fill, wide_rings
 
     from warp_terrain.models.biharmonic import biharmonic_fill, v_cycles

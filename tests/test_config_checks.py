@@ -191,6 +191,7 @@ INVALID = {
     "train.dataset": "/no/such/dataset",
     "train.capture": "sometimes",
     "train.init_from": "/no/such/model.pt",
+    "train.cell_dropout": 1.0,
 }
 # Free text, recorded with a preset and never interpreted: nothing can be wrong with it.
 UNCHECKED = {"lidar.source"}

@@ -48,6 +48,9 @@ class TrainConfig:
     ``capture``: the live stream replays one recorded batch per step (``sim/graph.py``
     ``BatchGraph``: a CUDA graph on CUDA; on the CPU, in each generator process, the same
     launches on the same arrays); needs a fixed world (no ``data.randomize``, fBm terrain).
+    ``cell_dropout``: each training input loses a share of its observed cells drawn uniformly in
+    ``[0, cell_dropout]`` (``data.cell_dropout``), scored as unobserved cells: the single holes
+    the self-check makes at inference (0: off; validation inputs are never thinned).
     """
 
     steps: int = 1000
@@ -68,6 +71,7 @@ class TrainConfig:
     dataset: str = ""
     capture: bool = False
     init_from: str = ""
+    cell_dropout: float = 0.0
 
     def validate(self) -> None:
         for key in ("steps", "batch_size", "val_every", "val_size", "log_every", "image_every", "checkpoint_every", "prefetch"):
@@ -88,6 +92,8 @@ class TrainConfig:
         resume = str(self.resume).strip()
         if resume.lower() not in RESUME_OFF + RESUME_LATEST:
             require(Path(resume).expanduser().exists(), "resume", self.resume, "must be false, true, or an existing run folder or checkpoint file")
+        check_finite("cell_dropout", self.cell_dropout)
+        require(0.0 <= self.cell_dropout < 1.0, "cell_dropout", self.cell_dropout, "must be in [0, 1)")
         check_finite("lr_decay_from", self.lr_decay_from)
         require(0.0 <= self.lr_decay_from <= 1.0, "lr_decay_from", self.lr_decay_from, "must be in [0, 1]")
 

@@ -31,6 +31,7 @@ from omegaconf import OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from ..core.torchfile import atomic_save, load_checkpoint
+from ..data.cell_dropout import drop_observed_cells
 from ..data.seeds import batch_seed
 from ..data.stream import validation_set
 from ..evaluation.baselines import nearest_fill
@@ -262,6 +263,8 @@ def _resume(model: Pix2PixModel, cfg: RunConfig, run_dir: Path, ranks: Ranks) ->
     return int(state["step"]), float(state["best"])
 
 
+#: seed offset of ``train.cell_dropout``'s draws (with the run's seed and the step)
+CELL_DROPOUT_SEED = 0xD209
 #: the least base-fill error (m) a map's loss is divided by with ``model.fill_relative_loss``
 FILL_ERROR_FLOOR = 0.01
 
@@ -283,6 +286,9 @@ def step(run: TrainingRun, batches: Iterator[dict], step: int) -> None:
     batch = {k: v.to(run.device, non_blocking=True) for k, v in batch.items() if k != "step"}
     if "offset" in batch:  # model.centre_cells: the cells moved to their centres, as a cloud's are
         batch["scan"] = centre_cells(batch["scan"], batch["mask"], batch.pop("offset"), cfg.data.map_cell)
+    if cfg.train.cell_dropout > 0:  # single holes in the rings, as the self-check makes them (per step: resumable)
+        batch["scan"], batch["mask"] = drop_observed_cells(batch["scan"], batch["mask"], cfg.train.cell_dropout,
+                                                           seed=CELL_DROPOUT_SEED + cfg.train.seed * 1_000_003 + step)
     weight = loss_weight_map(batch["scan"], batch["mask"], cfg.model.unobserved_weight, run.relief_floor, cfg.model.height_reference)
     valid = batch.get("valid")  # with real scans mixed in: where the target is known
     if cfg.model.fill_relative_loss:

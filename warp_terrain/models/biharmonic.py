@@ -90,11 +90,11 @@ def conjugate_gradient(u: torch.Tensor, free: torch.Tensor, steps: int, tension:
     if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export() or torch.compiler.is_compiling():
         return _eager_cg(u, free, steps, tension, k2)
     if isinstance(tension, torch.Tensor):
-        return _scripted_cg(u, free, steps, 1.0 - tension, tension, float(k2), MIXED)
+        return _scripted_cg(u, None, free, steps, 1.0 - tension, tension, float(k2), MIXED)
     kind = MEMBRANE if tension == 1 else THIN_PLATE if tension == 0 else MIXED
     # a number's 1 - t in double, then rounded, as the eager op's scalar is
     a, t = (torch.tensor(float(x), dtype=u.dtype, device=u.device) for x in (1.0 - tension, tension))
-    return _scripted_cg(u, free, steps, a, t, float(k2), kind)
+    return _scripted_cg(u, None, free, steps, a, t, float(k2), kind)
 
 
 #: The operator's forms in :func:`_scripted_cg`: ``-L`` (a tension of exactly 1), the screened
@@ -124,10 +124,11 @@ def _scripted_operator(u: torch.Tensor, a: torch.Tensor, t: torch.Tensor, k2: fl
 
 
 @torch.jit.script
-def _scripted_cg(u: torch.Tensor, free: torch.Tensor, steps: int, a: torch.Tensor, t: torch.Tensor, k2: float,
-                 kind: int) -> torch.Tensor:
-    """:func:`_eager_cg` as TorchScript."""
-    r = -free * _scripted_operator(u, a, t, k2, kind)
+def _scripted_cg(u: torch.Tensor, b: torch.Tensor | None, free: torch.Tensor, steps: int, a: torch.Tensor, t: torch.Tensor,
+                 k2: float, kind: int) -> torch.Tensor:
+    """:func:`_eager_cg` as TorchScript: ``steps`` CG iterations on ``free * (A u - b) = 0`` from
+    ``u`` (``b`` None: 0, the fill's own equation; a residual's right-hand side in a V-cycle)."""
+    r = -free * _scripted_operator(u, a, t, k2, kind) if b is None else free * (b - _scripted_operator(u, a, t, k2, kind))
     p = r
     rr = (r * r).sum(dim=(1, 2, 3), keepdim=True)
     for _ in range(steps):
@@ -234,37 +235,20 @@ CYCLE_COARSEST_STEPS = 16
 
 
 @torch.jit.script
-def _scripted_residual_cg(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, steps: int, a: torch.Tensor,
-                          t: torch.Tensor) -> torch.Tensor:
-    """``steps`` CG iterations on ``free * (A u - b) = 0`` from ``u``, ``A = a L L - t L``."""
-    r = free * (b - _scripted_operator(u, a, t, 0.0, 2))
-    p = r
-    rr = (r * r).sum(dim=(1, 2, 3), keepdim=True)
-    for _ in range(steps):
-        ap = free * _scripted_operator(p, a, t, 0.0, 2)
-        alpha = rr / (p * ap).sum(dim=(1, 2, 3), keepdim=True).clamp_min(1e-30)
-        u = torch.addcmul(u, alpha, p)
-        r = torch.addcmul(r, alpha, ap, value=-1.0)
-        rr_new = (r * r).sum(dim=(1, 2, 3), keepdim=True)
-        p = torch.addcmul(r, rr_new / rr.clamp_min(1e-30), p)
-        rr = rr_new
-    return u
-
-
-@torch.jit.script
 def _scripted_v_cycle(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, a: torch.Tensor, t: torch.Tensor, pre: int,
                       post: int, coarsest_steps: int, coarsest: int) -> torch.Tensor:
     """One multigrid V-cycle on ``free * (A u - b) = 0`` from ``u`` (:func:`v_cycles`)."""
     stack: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]] = []
+    # kind 2 throughout: MIXED, the operator under a tension per map (TorchScript reads no module globals)
     while max(u.shape[-2], u.shape[-1]) > coarsest:
-        u = _scripted_residual_cg(u, b, free, pre, a, t)
+        u = _scripted_cg(u, b, free, pre, a, t, 0.0, 2)
         r = free * (b - _scripted_operator(u, a, t, 0.0, 2))
         stack.append((u, b, free, a, t, r))
         b = F.avg_pool2d(r, 2, ceil_mode=True)  # the residual per coarse cell
         free = 1.0 - F.max_pool2d(1.0 - free, 2, ceil_mode=True)  # free where all four fine cells are
         u = torch.zeros_like(b)
         a, t = a / 16.0, t / 4.0  # L L and L in coarse cells, as fine cells' residuals
-    u = _scripted_residual_cg(u, b, free, coarsest_steps, a, t)
+    u = _scripted_cg(u, b, free, coarsest_steps, a, t, 0.0, 2)
     for i in range(len(stack) - 1, -1, -1):
         fine, b, free, a, t, r = stack[i]
         e = F.interpolate(u, scale_factor=2.0, mode="bilinear", align_corners=False)
@@ -272,7 +256,7 @@ def _scripted_v_cycle(u: torch.Tensor, b: torch.Tensor, free: torch.Tensor, a: t
         # the step along the correction that minimises the energy: a cycle never raises it
         step = (r * e).sum(dim=(1, 2, 3), keepdim=True) / (e * free * _scripted_operator(e, a, t, 0.0, 2)).sum(
             dim=(1, 2, 3), keepdim=True).clamp_min(1e-30)
-        u = _scripted_residual_cg(torch.addcmul(fine, step, e), b, free, post, a, t)
+        u = _scripted_cg(torch.addcmul(fine, step, e), b, free, post, a, t, 0.0, 2)
     return u
 
 

@@ -838,3 +838,91 @@ def test_package_model_records_check_cycles_and_refuses_bad_ones(tmp_path, capsy
     assert not (tmp_path / "x.pt").exists()
     with pytest.raises(ValueError, match="check_cycles must be an integer >= 0"):
         Reconstructor.load(tmp_path / "residual.pt", device="cpu", check_cycles=-2)
+
+
+def _walled_scan(size: int = 41, overhang: bool = False):
+    """Flat ground at -1.8 m seen all round a sensor at the map's centre, a 1 m wall 8 cells in
+    front of it and the ground behind the wall unobserved (its shadow); with ``overhang`` the
+    ground behind the wall was seen all the same (returns under a canopy: a 2.5-D map puts them
+    in the wall's shadow)."""
+    from warp_terrain.inference.shadows import horizon
+
+    centre = size // 2
+    scan, mask = torch.full((1, 1, size, size), -1.8), torch.ones(1, 1, size, size)
+    scan[..., centre - 3 : centre + 4, centre + 8] = -0.8
+    if not overhang:  # the wall's shadow: the ground under the line of sight over it (tests/test_shadows.py)
+        mask[scan < horizon(scan, mask)] = 0.0
+    truth = scan.clone()
+    return scan * mask, mask, truth
+
+
+def _check_parts(scan, mask, correction: float):
+    """The check's inputs for fills that are the truth (flat ground and the wall) and a net that
+    adds ``correction`` metres everywhere off the observed cells: the hidden cells refute it."""
+    from warp_terrain.inference.selfcheck import Regimes, check_cells, checked_maps
+
+    hidden, _, thinned = check_cells(mask, reach=False)
+    fill = torch.where(mask > 0, scan, torch.full_like(scan, -1.8))
+    fill_thinned = torch.where(thinned > 0, scan, torch.full_like(scan, -1.8))
+    fill_thinned = torch.where((mask > 0) & (scan > -1.0), scan, fill_thinned)  # the fills know the wall
+    both = torch.cat([fill, fill_thinned])
+    fills = torch.stack([both, both, both])  # base fill, thin plate, membrane: all the truth
+    model = both + correction * (torch.cat([mask, thinned]) <= 0)
+    regimes = Regimes(hidden, None)
+    return lambda margin: checked_maps(fills, model, scan, mask, thinned, regimes, True, False, margin), fill
+
+
+def test_the_check_keeps_the_correction_whole_in_the_scans_shadows():
+    """The hidden cells refute the net's +0.5 m (they are the fill's exactly), so the check
+    switches it off, except, with a shadow margin, on the cells behind the wall: the sensor saw
+    nothing there, no hidden cell can measure the net there, and the map keeps all of it."""
+    from warp_terrain.inference.shadows import shadow_cells
+
+    scan, mask, _ = _walled_scan()
+    check, fill = _check_parts(scan, mask, 0.5)
+    off, _ = check(None)
+    torch.testing.assert_close(off, fill)
+    on, _ = check(torch.zeros(2, 1, 1, 1))
+    shadows = shadow_cells(scan, mask, fill)
+    assert torch.equal(shadows, mask <= 0)
+    # the line over the wall's top (-0.8 m at 8 cells) meets the ground at 8 * 1.8 / 0.8 = 18 cells
+    assert bool(shadows[0, 0, 20, 29:38].all()) and not bool(shadows[0, 0, 20, 38:].any())
+    torch.testing.assert_close(on, fill + 0.5 * shadows)
+
+
+def test_a_scan_whose_seen_cells_lie_in_its_shadows_refutes_its_horizon():
+    """Returns behind the wall (under an overhang): the check's hidden cells there lie in the
+    thinned scan's shadows although the sensor saw them, ``SHADOW_REFUTED`` or more of them, and
+    they refute the +0.5 m: the shadows then keep their least-squares weight, none of it."""
+    from warp_terrain.inference.selfcheck import SHADOW_REFUTED, check_cells
+    from warp_terrain.inference.shadows import shadow_cells
+
+    scan, mask, _ = _walled_scan(overhang=True)
+    hidden, _, thinned = check_cells(mask, reach=False)
+    seen_in_shadow = shadow_cells(scan * thinned, thinned, torch.full_like(scan, -1.8)) & hidden
+    assert int(seen_in_shadow.sum()) >= SHADOW_REFUTED
+    mask_cut = mask.clone()
+    mask_cut[..., 19:22, 29:] = 0.0  # the shadow itself unobserved too, beside the seen cells
+    check, fill = _check_parts(scan * mask_cut, mask_cut, 0.5)
+    on, _ = check(torch.zeros(2, 1, 1, 1))
+    torch.testing.assert_close(on, fill)
+
+
+def test_package_model_records_check_keep_shadows_and_needs_the_self_check(tmp_path, capsys):
+    import json
+
+    from warp_terrain.cli import main
+    from warp_terrain.evaluation.calibrate import package_model
+    from warp_terrain.models.pix2pix import build_generator
+
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
+    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "shadows.pt"), "--calibrate", "0",
+                 "--self-check", "--check-keep-shadows"]) == 0
+    assert json.loads(capsys.readouterr().out)["check_keep_shadows"] is True
+    assert Reconstructor.load(tmp_path / "shadows.pt", device="cpu").check_keep_shadows
+    assert not Reconstructor.load(tmp_path / "shadows.pt", device="cpu", check_keep_shadows=False).check_keep_shadows
+    assert not Reconstructor.load(tmp_path / "residual.pt", device="cpu").check_keep_shadows  # off unless the file says so
+    with pytest.raises(ValueError, match="check_keep_shadows: needs self_check"):
+        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, check_keep_shadows=True)
+    assert not (tmp_path / "x.pt").exists()

@@ -8,7 +8,8 @@ usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL 
   off, `_nomembrane` the check's membrane candidate off (the thin plate alone beside the base
   fill), `_keepfar` / `_nokeepfar` the check's correction kept whole far from the scan on / off
   (else as the file says), `_cyclesN` N multigrid V-cycles on the check's thin plates (else as the file
-  says). The classical fills are scored too; with --fills-cache their scores are read from FILE
+  says), `_shadows` / `_noshadows` the correction kept whole in the scan's shadows on / off (else as
+  the file says). The classical fills are scored too; with --fills-cache their scores are read from FILE
   when it exists (the fills are deterministic: same seeds, same maps) and written to it when
   not. Writes tools/real_ablation_<names>.json and prints, per family, each model's RMSE over
   the best classical fill's and its share of scored cells within 1 sigma, then one markdown
@@ -55,7 +56,8 @@ def models(args) -> dict:
         file = None if path == "shipped" else path
         rec = Reconstructor.load(file, device="cpu", tta="_notta" not in name, self_check="_check" in name,
                                  check_reach=flag(name, "reach"), check_sigma=flag(name, "sigma"),
-                                 check_keep_far=flag(name, "keepfar"), check_cycles=cycles(name))
+                                 check_keep_far=flag(name, "keepfar"), check_cycles=cycles(name),
+                                 check_keep_shadows=flag(name, "shadows"))
         if flag(name, "membrane") is not None:
             rec.check_tensions = CANDIDATE_TENSIONS if flag(name, "membrane") else THIN_PLATE_ONLY
         out[name] = reconstructor_predictor(rec, 16, file)

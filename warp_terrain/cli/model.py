@@ -276,6 +276,10 @@ def add_package_model(sub) -> None:
     p.add_argument("--check-cycles", type=_non_negative_int, default=0, metavar="N",
                    help="with --self-check: N multigrid V-cycles on the thin plates the check weighs, after the "
                         "cascade (the cascade stops short in the wide gaps of sparse scans; default 0)")
+    p.add_argument("--check-keep-shadows", action="store_true",
+                   help="with --self-check: the net's correction is kept whole in the scan's shadows (unobserved cells "
+                        "under the sensor's line of sight over the observed ones), unless the check's own cells refute "
+                        "the scan's horizon (inference/shadows.py)")
     p.add_argument("--observed-bound-noise", type=float, default=None, metavar="K",
                    help="widen the generator's bound on observed cells to K times each scan's own noise "
                         "(model.observed_bound_noise; it holds no weight; default: as the checkpoint's model)")
@@ -294,5 +298,6 @@ def cmd_package_model(args) -> int:
     print(json.dumps(package_model(args.checkpoint, out, calibrate=args.calibrate, device=args.device, self_check=args.self_check,
                                    check_reach=args.check_reach, check_sigma=args.check_sigma,
                                    check_membrane=args.check_membrane, check_keep_far=args.check_keep_far,
-                                   observed_bound_noise=args.observed_bound_noise, check_cycles=args.check_cycles)))
+                                   observed_bound_noise=args.observed_bound_noise, check_cycles=args.check_cycles,
+                                   check_keep_shadows=args.check_keep_shadows)))
     return 0

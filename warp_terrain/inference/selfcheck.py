@@ -36,6 +36,15 @@ shipped net alone scores 0.85 of the best fill, checked with ``w_far`` 1.12). Wi
 ``keep_far`` the correction is kept whole far from the scan (``w_far = 1``): the check then
 governs where it can measure, next to the scan, and the trained net where nothing can be
 measured; the outer cells still weigh the membrane and scale the sigma.
+
+Nor can the check see behind what the scan shows: its hidden cells were all seen by the sensor,
+while an obstacle's back, 2-7 cells from the scan, was not, and there the near weight governs a
+correction it never measured. With ``keep_shadows`` (``checked_maps``' ``shadow_margin``) the
+correction is kept whole in the map's shadows (``shadows.shadow_cells``: unobserved cells whose
+fill lies below the sensor's line of sight over the observed cells in front of them), unless the
+scan refutes its own horizon: a 2.5-D map of returns under a canopy or past a pole's top puts
+cells the sensor saw in shadow, and where ``SHADOW_REFUTED`` of the check's cells fall in the
+thinned scan's shadows the correction there is weighed on them instead (``shadow_weight``).
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ from __future__ import annotations
 import torch
 
 from ..models.noise import NOISE_MAD, scan_noise  # noqa: F401  (the check's noise: re-exported)
+from .shadows import shadow_cells
 
 #: Share of a map's observed cells hidden for the check (the real-data suite hides 20 % too).
 CHECK_SHARE = 0.2
@@ -53,6 +63,12 @@ CHECK_SEED = 0x5E1F
 REACH_NEAR = 2
 #: Cells from which the weight measured on the outer cells (``outer_cells``) holds alone.
 REACH_FAR = 8
+#: The margin of the horizon a scan's shadows lie under (``shadows.horizon``), in the scan's own
+#: noises (``scan_noise``): a measured height may lie that far above the ground's.
+SHADOW_MARGIN = 3.0
+#: The check's cells (hidden, so seen by the sensor) in the thinned scan's shadows from which the
+#: horizon counts as refuted on a scan (stop 41: 4 and 16 score alike).
+SHADOW_REFUTED = 8
 
 
 def hidden_cells(mask: torch.Tensor, share: float = CHECK_SHARE, seed: int = CHECK_SEED) -> torch.Tensor:
@@ -119,6 +135,11 @@ class Regimes:
             shares = far_share(torch.cat(masks)).split([m.shape[0] for m in masks])
             self._far = list(zip(masks, shares))
 
+    @property
+    def checked(self) -> torch.Tensor:
+        """(B, 1, S, S) bool: every cell the check hid (the random ones and the outer ones)."""
+        return self.hidden if self.outer is None else self.hidden | self.outer
+
     def measure(self, statistic, *args):
         """``(near, away)``: ``statistic(*args, cells)`` on the hidden cells and on the outer ones."""
         return statistic(*args, self.hidden), None if self.outer is None else statistic(*args, self.outer)
@@ -149,7 +170,8 @@ class Regimes:
 
 
 def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,
-                 regimes: Regimes, membrane: bool, keep_far: bool) -> tuple[torch.Tensor, torch.Tensor]:
+                 regimes: Regimes, membrane: bool, keep_far: bool, shadow_margin: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(map, thinned map)``, each (N, 1, S, S): the checked map of the full scan and, blended
     the same way, the one of the thinned scan (what the check's cells are scored on).
 
@@ -159,13 +181,38 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
     cells), and with ``membrane`` (``fills[-1]``) moved towards the membrane by the share the
     check's cells support (``regimes``: near the scan and far from it); the model's correction
     to that fill is then kept in the share the same cells support; with ``keep_far`` (and the
-    reach) in full far from the scan, whatever the outer cells say."""
+    reach) in full far from the scan, whatever the outer cells say.
+
+    ``shadow_margin`` (2N, 1, 1, 1) metres, both scans' (None: off): the correction is kept
+    whole in each map's shadows (:func:`shadow_weight`), the horizon of each observed cell
+    lowered by its scan's margin."""
     n = scan.shape[0]
     fill, fill_thinned = checked_fills(fills, scan, mask, thinned, regimes, membrane)
     w = regimes.weight(model[n:], fill_thinned, scan)
     if keep_far and w[1] is not None:
         w = (w[0], torch.ones_like(w[1]))
-    return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
+    if shadow_margin is None:
+        return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
+    shadows = shadow_cells(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), torch.cat([fill, fill_thinned]),
+                           shadow_margin)
+    keep = shadow_weight(model[n:], fill_thinned, scan, shadows[n:] & regimes.checked)
+    out = []
+    for part, f, m, observed in ((slice(0, n), fill, model[:n], mask), (slice(n, None), fill_thinned, model[n:], thinned)):
+        weight = regimes.at(w, observed)
+        weight = torch.where(shadows[part], torch.maximum(weight, keep), weight)
+        out.append(f + weight * (m - f))
+    return out[0], out[1]
+
+
+def shadow_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor, seen_in_shadow: torch.Tensor) -> torch.Tensor:
+    """(B, 1, 1, 1) the share of the net's correction a map keeps in its shadows (at least; the
+    check's own weight where that is more): all of it, unless ``SHADOW_REFUTED`` or more of the
+    check's cells (all seen by the sensor) lie in the thinned scan's shadows. The horizon is then
+    refuted on this scan (returns under an overhang: a canopy, a pole, a car's roof), and the
+    shadows keep the least-squares weight of the correction on those cells (``correction_weight``)."""
+    refuted = seen_in_shadow.sum(dim=(2, 3), keepdim=True) >= SHADOW_REFUTED
+    measured_weight = correction_weight(model, fill, measured, seen_in_shadow)
+    return torch.where(refuted, measured_weight, torch.ones_like(measured_weight))
 
 
 def checked_fills(fills: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor, regimes: Regimes,

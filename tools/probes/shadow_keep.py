@@ -1,0 +1,112 @@
+"""Probe (docs/transfer.md, stop 41): keep the net's correction whole in the scan's shadows.
+
+The check's hidden cells were all seen by the sensor; a cell behind an obstacle was not, and
+there (an obstacle's back, 2-7 cells from the scan) the check's near weight governs a correction
+it never measured (stop 32). The scan says which unobserved cells lie in a shadow: along the ray
+from the sensor (the map's centre, height 0) to a cell at distance ``r``, every observed cell
+``k`` in front of it bounds the line of sight from below, and a surface at ``r`` lower than
+
+    horizon(r) = r * max_k (z_k - M * noise) / r_k
+
+cannot have been seen (``noise``: the scan's own, ``selfcheck.scan_noise``; ``M`` its margin).
+A cell is in shadow where the check's classical fill lies below that horizon by more than
+``D`` cm: the fill, not the net, decides it. There the correction is kept whole (as far from
+the scan with ``check_keep_far``); elsewhere the check weighs it as shipped. The thinned scan's
+map is kept the same way (its own horizon), so the check's sigma factors see the kept map.
+NAME tokens ``_shM_D``: margin ``M`` noises, ``D`` cm below the horizon (no token: shipped);
+``_shvN``: where N or more of the check's hidden cells (all seen by the sensor) lie in the thinned
+scan's shadows, the horizon is refuted there (overhangs, thin clutter): the shadows then keep the
+correction's least-squares weight on those cells instead of all of it.
+
+usage: THREADS=2 python tools/probes/shadow_keep.py --fills-cache outputs/fills_cache.json \
+           SH_check_reach_keepfar_sigma_membrane_sh3_0=shipped
+"""
+
+import functools
+import math
+import re
+
+import torch
+from common import run
+
+import warp_terrain.inference.reconstructor as reconstructor
+import warp_terrain.inference.selfcheck as check
+from warp_terrain.models.noise import scan_noise
+
+PROBE: dict = {}
+
+
+@functools.lru_cache(maxsize=4)
+def ray_cells(size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(index, distance)``: for each cell (row-major) the cells its ray from the map's centre
+    crosses before it (sampled every half cell; padded with ``size * size``, a slot that is never
+    observed), (S*S, L) int64, and each cell's distance from the centre in cells, (S*S,)."""
+    centre = 0.5 * (size - 1)
+    rows, cols = torch.meshgrid(torch.arange(size, dtype=torch.float64), torch.arange(size, dtype=torch.float64), indexing="ij")
+    dy, dx = (rows - centre).flatten(), (cols - centre).flatten()
+    distance = torch.sqrt(dx * dx + dy * dy)
+    steps = int(math.ceil(2.0 * distance.max().item()))
+    t = torch.arange(1, steps, dtype=torch.float64) / steps  # (L,) in (0, 1)
+    # a ray of n half-cells samples t = k / n; shorter rays reuse the table's t where t * distance < distance - 0.5
+    r = torch.round(centre + dy[:, None] * t[None, :]).long().clamp(0, size - 1)
+    c = torch.round(centre + dx[:, None] * t[None, :]).long().clamp(0, size - 1)
+    index = r * size + c
+    own = torch.arange(size * size)[:, None]
+    index = torch.where(index == own, torch.full_like(index, size * size), index)  # not the cell itself
+    return index, distance.float()
+
+
+def horizon(scan: torch.Tensor, mask: torch.Tensor, margin: torch.Tensor) -> torch.Tensor:
+    """(B, 1, S, S) the lowest height the sensor could have seen at each cell, over the observed
+    cells in front of it (-inf where none is)."""
+    b, size = scan.shape[0], scan.shape[-1]
+    index, distance = ray_cells(size)
+    distance = distance.to(scan.device)
+    slope = torch.where((mask > 0) & (distance.view(1, 1, size, size) >= 1.0),
+                        (scan - margin) / distance.view(1, 1, size, size).clamp_min(1.0), torch.full_like(scan, -math.inf))
+    slope = torch.cat([slope.flatten(1), torch.full((b, 1), -math.inf, dtype=scan.dtype, device=scan.device)], dim=1)
+    best = slope[:, index.to(scan.device)].amax(dim=2)  # (B, S*S)
+    return (best * distance).view(b, 1, size, size)
+
+
+def shadow(scan, mask, fill):
+    """(B, 1, S, S) bool: unobserved cells whose fill lies below the horizon (module docstring)."""
+    margin = PROBE["margin"] * scan_noise(scan, mask)
+    below = horizon(scan, mask, margin) - fill
+    return (mask <= 0) & (below > PROBE["depth"]) & torch.isfinite(below)
+
+
+def checked_maps(fills, model, scan, mask, thinned, regimes, membrane, keep_far):
+    """``selfcheck.checked_maps``, the correction kept whole in the scan's shadows."""
+    if "margin" not in PROBE:
+        return check.checked_maps(fills, model, scan, mask, thinned, regimes, membrane, keep_far)
+    n = scan.shape[0]
+    fill, fill_thinned = check.checked_fills(fills, scan, mask, thinned, regimes, membrane)
+    w = regimes.weight(model[n:], fill_thinned, scan)
+    if keep_far and w[1] is not None:
+        w = (w[0], torch.ones_like(w[1]))
+    keep = torch.ones_like(fill[:, :, :1, :1])
+    if PROBE["verify"]:  # the check's cells the thinned map puts in shadow were seen: weigh the net there
+        cells = shadow(scan * thinned, thinned, fill_thinned) & (regimes.hidden | (regimes.outer if regimes.outer is not None else False))
+        measured = check.correction_weight(model[n:], fill_thinned, scan, cells)
+        enough = cells.sum(dim=(2, 3), keepdim=True) >= PROBE["verify"]
+        keep = torch.where(enough, measured, keep)
+        PROBE.setdefault("verified", []).extend(zip(cells.sum(dim=(2, 3)).flatten().tolist(), keep.flatten().tolist()))
+    out = []
+    for f, m, s, observed in ((fill, model[:n], scan, mask), (fill_thinned, model[n:], scan * thinned, thinned)):
+        weight = torch.where(shadow(s, observed, f), torch.maximum(keep, regimes.at(w, observed)), regimes.at(w, observed))
+        out.append(f + weight * (m - f))
+    PROBE.setdefault("shares", []).append(shadow(scan, mask, fill).float().mean().item())
+    return tuple(out)
+
+
+def settings_of(name: str) -> dict:
+    if m := re.search(r"_sh(\d+)_(\d+)", name):
+        v = re.search(r"_shv(\d+)", name)
+        return {"margin": float(m[1]), "depth": int(m[2]) / 100.0, "verify": int(v[1]) if v else 0}
+    return {}
+
+
+if __name__ == "__main__":
+    reconstructor.checked_maps = checked_maps
+    run(settings_of, PROBE)

@@ -347,6 +347,14 @@ def test_keep_far_keeps_the_correction_whole_far_from_the_scan_whatever_the_oute
     assert float((plain - truth).abs().max()) < 0.01
 
 
+def _save_tiny_residual(path) -> None:
+    """A small untrained fill-residual model file for the packaging tests."""
+    from warp_terrain.models.pix2pix import build_generator
+
+    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
+    Reconstructor(build_generator(cfg), cfg, device="cpu").save(path)
+
+
 def test_package_model_records_check_reach_and_needs_the_self_check(tmp_path):
     from warp_terrain.evaluation.calibrate import package_model
 
@@ -608,8 +616,7 @@ def test_package_model_cli_passes_every_check_flag(tmp_path, capsys):
     from warp_terrain.cli import main
     from warp_terrain.models.pix2pix import build_generator
 
-    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
-    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    _save_tiny_residual(tmp_path / "residual.pt")
     args = ["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "all.pt"), "--calibrate", "0", "--self-check",
             "--check-reach", "--check-membrane", "--check-keep-far"]
     assert main(args) == 0
@@ -821,10 +828,8 @@ def test_package_model_records_check_cycles_and_refuses_bad_ones(tmp_path, capsy
 
     from warp_terrain.cli import main
     from warp_terrain.evaluation.calibrate import package_model
-    from warp_terrain.models.pix2pix import build_generator
 
-    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
-    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    _save_tiny_residual(tmp_path / "residual.pt")
     assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "cycles.pt"), "--calibrate", "0",
                  "--self-check", "--check-cycles", "2"]) == 0
     assert json.loads(capsys.readouterr().out)["check_cycles"] == 2
@@ -913,10 +918,8 @@ def test_package_model_records_check_keep_shadows_and_needs_the_self_check(tmp_p
 
     from warp_terrain.cli import main
     from warp_terrain.evaluation.calibrate import package_model
-    from warp_terrain.models.pix2pix import build_generator
 
-    cfg = ModelConfig(name="unet", in_channels=2, residual=True, ngf=4, unet_depth=3).validate()
-    Reconstructor(build_generator(cfg), cfg, device="cpu").save(tmp_path / "residual.pt")
+    _save_tiny_residual(tmp_path / "residual.pt")
     assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "shadows.pt"), "--calibrate", "0",
                  "--self-check", "--check-keep-shadows"]) == 0
     assert json.loads(capsys.readouterr().out)["check_keep_shadows"] is True

@@ -13,7 +13,9 @@ A cell is in shadow where the check's classical fill lies below that horizon by 
 ``D`` cm: the fill, not the net, decides it. There the correction is kept whole (as far from
 the scan with ``check_keep_far``); elsewhere the check weighs it as shipped. The thinned scan's
 map is kept the same way (its own horizon), so the check's sigma factors see the kept map.
-NAME tokens ``_shM_D``: margin ``M`` noises, ``D`` cm below the horizon (no token: shipped);
+The horizon is the package's (``inference/shadows.py``; the stop-41 figures of this probe were
+measured with its first rays, sampled every half cell, before they moved there as digital lines;
+the production row ``SD1`` reproduced ``_sh3_0_shv4`` to the second decimal). NAME tokens ``_shM_D``: margin ``M`` noises, ``D`` cm below the horizon (no token: shipped);
 ``_shvN``: where N or more of the check's hidden cells (all seen by the sensor) lie in the thinned
 scan's shadows, the horizon is refuted there (overhangs, thin clutter): the shadows then keep the
 correction's least-squares weight on those cells instead of all of it.
@@ -22,8 +24,6 @@ usage: THREADS=2 python tools/probes/shadow_keep.py --fills-cache outputs/fills_
            SH_check_reach_keepfar_sigma_membrane_sh3_0=shipped
 """
 
-import functools
-import math
 import re
 
 import torch
@@ -31,49 +31,15 @@ from common import run
 
 import warp_terrain.inference.reconstructor as reconstructor
 import warp_terrain.inference.selfcheck as check
+from warp_terrain.inference.shadows import shadow_cells
 from warp_terrain.models.noise import scan_noise
 
 PROBE: dict = {}
 
 
-@functools.lru_cache(maxsize=4)
-def ray_cells(size: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(index, distance)``: for each cell (row-major) the cells its ray from the map's centre
-    crosses before it (sampled every half cell; padded with ``size * size``, a slot that is never
-    observed), (S*S, L) int64, and each cell's distance from the centre in cells, (S*S,)."""
-    centre = 0.5 * (size - 1)
-    rows, cols = torch.meshgrid(torch.arange(size, dtype=torch.float64), torch.arange(size, dtype=torch.float64), indexing="ij")
-    dy, dx = (rows - centre).flatten(), (cols - centre).flatten()
-    distance = torch.sqrt(dx * dx + dy * dy)
-    steps = int(math.ceil(2.0 * distance.max().item()))
-    t = torch.arange(1, steps, dtype=torch.float64) / steps  # (L,) in (0, 1)
-    # a ray of n half-cells samples t = k / n; shorter rays reuse the table's t where t * distance < distance - 0.5
-    r = torch.round(centre + dy[:, None] * t[None, :]).long().clamp(0, size - 1)
-    c = torch.round(centre + dx[:, None] * t[None, :]).long().clamp(0, size - 1)
-    index = r * size + c
-    own = torch.arange(size * size)[:, None]
-    index = torch.where(index == own, torch.full_like(index, size * size), index)  # not the cell itself
-    return index, distance.float()
-
-
-def horizon(scan: torch.Tensor, mask: torch.Tensor, margin: torch.Tensor) -> torch.Tensor:
-    """(B, 1, S, S) the lowest height the sensor could have seen at each cell, over the observed
-    cells in front of it (-inf where none is)."""
-    b, size = scan.shape[0], scan.shape[-1]
-    index, distance = ray_cells(size)
-    distance = distance.to(scan.device)
-    slope = torch.where((mask > 0) & (distance.view(1, 1, size, size) >= 1.0),
-                        (scan - margin) / distance.view(1, 1, size, size).clamp_min(1.0), torch.full_like(scan, -math.inf))
-    slope = torch.cat([slope.flatten(1), torch.full((b, 1), -math.inf, dtype=scan.dtype, device=scan.device)], dim=1)
-    best = slope[:, index.to(scan.device)].amax(dim=2)  # (B, S*S)
-    return (best * distance).view(b, 1, size, size)
-
-
 def shadow(scan, mask, fill):
-    """(B, 1, S, S) bool: unobserved cells whose fill lies below the horizon (module docstring)."""
-    margin = PROBE["margin"] * scan_noise(scan, mask)
-    below = horizon(scan, mask, margin) - fill
-    return (mask <= 0) & (below > PROBE["depth"]) & torch.isfinite(below)
+    """(B, 1, S, S) bool: unobserved cells whose fill lies ``D`` below the horizon (module docstring)."""
+    return shadow_cells(scan, mask, fill + PROBE["depth"], PROBE["margin"] * scan_noise(scan, mask))
 
 
 def checked_maps(fills, model, scan, mask, thinned, regimes, membrane, keep_far):

@@ -194,14 +194,13 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
     if shadow_margin is None:
         return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
     shadows = shadow_cells(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), torch.cat([fill, fill_thinned]),
-                           shadow_margin)
-    keep = shadow_weight(model[n:], fill_thinned, scan, shadows[n:] & regimes.checked)
-    out = []
-    for part, f, m, observed in ((slice(0, n), fill, model[:n], mask), (slice(n, None), fill_thinned, model[n:], thinned)):
+                           shadow_margin).split(n)
+    keep = shadow_weight(model[n:], fill_thinned, scan, shadows[1] & regimes.checked)
+    maps = []
+    for shadow, f, m, observed in zip(shadows, (fill, fill_thinned), model.split(n), (mask, thinned)):
         weight = regimes.at(w, observed)
-        weight = torch.where(shadows[part], torch.maximum(weight, keep), weight)
-        out.append(f + weight * (m - f))
-    return out[0], out[1]
+        maps.append(f + torch.where(shadow, torch.maximum(weight, keep), weight) * (m - f))
+    return maps[0], maps[1]
 
 
 def shadow_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor, seen_in_shadow: torch.Tensor) -> torch.Tensor:

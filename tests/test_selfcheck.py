@@ -913,19 +913,76 @@ def test_a_scan_whose_seen_cells_lie_in_its_shadows_refutes_its_horizon():
     torch.testing.assert_close(on, fill)
 
 
-def test_package_model_records_check_keep_shadows_and_needs_the_self_check(tmp_path, capsys):
+@pytest.mark.parametrize("setting", ["check_keep_shadows", "check_keep_large"])
+def test_package_model_records_a_keep_setting_and_needs_the_self_check(tmp_path, capsys, setting):
     import json
 
     from warp_terrain.cli import main
     from warp_terrain.evaluation.calibrate import package_model
 
     _save_tiny_residual(tmp_path / "residual.pt")
-    assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "shadows.pt"), "--calibrate", "0",
-                 "--self-check", "--check-keep-shadows"]) == 0
-    assert json.loads(capsys.readouterr().out)["check_keep_shadows"] is True
-    assert Reconstructor.load(tmp_path / "shadows.pt", device="cpu").check_keep_shadows
-    assert not Reconstructor.load(tmp_path / "shadows.pt", device="cpu", check_keep_shadows=False).check_keep_shadows
-    assert not Reconstructor.load(tmp_path / "residual.pt", device="cpu").check_keep_shadows  # off unless the file says so
-    with pytest.raises(ValueError, match="check_keep_shadows: needs self_check"):
-        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, check_keep_shadows=True)
+    assert main(["package-model", str(tmp_path / "residual.pt"), "--out", str(tmp_path / "kept.pt"), "--calibrate", "0",
+                 "--self-check", "--" + setting.replace("_", "-")]) == 0
+    assert json.loads(capsys.readouterr().out)[setting] is True
+    assert getattr(Reconstructor.load(tmp_path / "kept.pt", device="cpu"), setting)
+    assert not getattr(Reconstructor.load(tmp_path / "kept.pt", device="cpu", **{setting: False}), setting)
+    assert not getattr(Reconstructor.load(tmp_path / "residual.pt", device="cpu"), setting)  # off unless the file says so
+    with pytest.raises(ValueError, match=f"{setting}: needs self_check"):
+        package_model(tmp_path / "residual.pt", tmp_path / "x.pt", calibrate=0, **{setting: True})
     assert not (tmp_path / "x.pt").exists()
+
+
+def _pit_check(dig_hidden: bool):
+    """A flat ground at -1.8 m seen all round but for a 5 x 5 pit the sensor did not see; the fills
+    are the flat ground. The net digs 0.5 m in the pit, adds 5 cm on the other unobserved cells of
+    each map (the check's hidden cells among them: they are the fill's exactly, so it is refuted)
+    and 0.5 m on one observed cell; with ``dig_hidden`` it digs 0.5 m on the hidden cells too."""
+    from warp_terrain.inference.selfcheck import LARGE_CORRECTION, Regimes, check_cells, checked_maps
+
+    size = 41
+    mask = torch.ones(1, 1, size, size)
+    mask[..., 8:13, 26:31] = 0.0
+    scan = torch.full_like(mask, -1.8) * mask
+    hidden, _, thinned = check_cells(mask, reach=False)
+    fill = torch.full((2, 1, size, size), -1.8)
+    fills = torch.stack([fill, fill, fill])
+    pit = torch.zeros_like(mask, dtype=torch.bool)
+    pit[..., 8:13, 26:31] = True
+    both_masks = torch.cat([mask, thinned])
+    correction = torch.where(both_masks <= 0, 0.05, 0.0)
+    correction = torch.where(pit.repeat(2, 1, 1, 1), -0.5, correction)
+    correction[:, :, 30, 5] = 0.5  # observed in both maps
+    if dig_hidden:
+        correction[1:] = torch.where(hidden, -0.5, correction[1:])
+    model = fill + correction
+    regimes = Regimes(hidden, None)
+    maps = {large: checked_maps(fills, model, scan, mask, thinned, regimes, True, False, None, large)[0]
+            for large in (None, LARGE_CORRECTION)}
+    return maps, fill[:1], pit, int(hidden.sum())
+
+
+def test_the_check_keeps_a_large_correction_whole_where_its_cells_cannot_measure_one():
+    """The hidden cells refute the net's 5 cm, so the check switches its correction off; with
+    ``large`` the pit's 0.5 m is kept whole (no hidden cell carries a correction that large), the
+    5 cm and the observed cell's 0.5 m are not (only unobserved cells keep a large correction)."""
+    maps, fill, pit, _ = _pit_check(dig_hidden=False)
+    torch.testing.assert_close(maps[None], fill)
+    torch.testing.assert_close(maps[0.3], fill - 0.5 * pit)
+
+
+def test_large_corrections_on_the_checks_own_cells_are_measured_there():
+    """The net digs 0.5 m on the hidden cells too (``LARGE_REFUTED`` or more of them), where the
+    ground is the fill's: their least-squares weight, 0, holds in the pit as well."""
+    from warp_terrain.inference.selfcheck import LARGE_REFUTED, large_weight
+
+    maps, fill, _, hidden = _pit_check(dig_hidden=True)
+    assert hidden >= LARGE_REFUTED
+    torch.testing.assert_close(maps[0.3], fill)
+    torch.testing.assert_close(maps[None], fill)
+    # fewer than LARGE_REFUTED such cells cannot measure it: all of it is kept
+    cells = (torch.arange(25) < LARGE_REFUTED - 1).view(1, 1, 5, 5)
+    zero = torch.zeros(1, 1, 5, 5)
+    assert float(large_weight(zero - 0.5, zero, zero, cells)) == 1.0
+    cells = (torch.arange(25) < LARGE_REFUTED).view(1, 1, 5, 5)
+    assert float(large_weight(zero - 0.5, zero, zero, cells)) == 0.0
+    assert float(large_weight(zero - 0.5, zero, zero - 0.25, cells)) == 0.5

@@ -9,6 +9,7 @@ usage: python tools/real_ablation.py [--fills-cache FILE] [--size N] NAME=MODEL 
   fill), `_keepfar` / `_nokeepfar` the check's correction kept whole far from the scan on / off
   (else as the file says), `_cyclesN` N multigrid V-cycles on the check's thin plates (else as the file
   says), `_shadows` / `_noshadows` the correction kept whole in the scan's shadows on / off (else as
+  the file says), `_large` / `_nolarge` large corrections kept whole unless the check measures them on / off (else as
   the file says). The classical fills are scored too; with --fills-cache their scores are read from FILE
   when it exists (the fills are deterministic: same seeds, same maps) and written to it when
   not. Writes tools/real_ablation_<names>.json and prints, per family, each model's RMSE over
@@ -57,7 +58,7 @@ def models(args) -> dict:
         rec = Reconstructor.load(file, device="cpu", tta="_notta" not in name, self_check="_check" in name,
                                  check_reach=flag(name, "reach"), check_sigma=flag(name, "sigma"),
                                  check_keep_far=flag(name, "keepfar"), check_cycles=cycles(name),
-                                 check_keep_shadows=flag(name, "shadows"))
+                                 check_keep_shadows=flag(name, "shadows"), check_keep_large=flag(name, "large"))
         if flag(name, "membrane") is not None:
             rec.check_tensions = CANDIDATE_TENSIONS if flag(name, "membrane") else THIN_PLATE_ONLY
         out[name] = reconstructor_predictor(rec, 16, file)

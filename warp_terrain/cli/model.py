@@ -280,6 +280,10 @@ def add_package_model(sub) -> None:
                    help="with --self-check: the net's correction is kept whole in the scan's shadows (unobserved cells "
                         "under the sensor's line of sight over the observed ones), unless the check's own cells refute "
                         "the scan's horizon (inference/shadows.py)")
+    p.add_argument("--check-keep-large", action="store_true",
+                   help="with --self-check: a correction of an obstacle's size (0.3 m, up or down) is kept whole on the "
+                        "unobserved cells (a pit, an obstacle's hidden side), unless the check's hidden cells carry such "
+                        "corrections and so measure them (inference/selfcheck.py)")
     p.add_argument("--observed-bound-noise", type=float, default=None, metavar="K",
                    help="widen the generator's bound on observed cells to K times each scan's own noise "
                         "(model.observed_bound_noise; it holds no weight; default: as the checkpoint's model)")
@@ -299,5 +303,5 @@ def cmd_package_model(args) -> int:
                                    check_reach=args.check_reach, check_sigma=args.check_sigma,
                                    check_membrane=args.check_membrane, check_keep_far=args.check_keep_far,
                                    observed_bound_noise=args.observed_bound_noise, check_cycles=args.check_cycles,
-                                   check_keep_shadows=args.check_keep_shadows)))
+                                   check_keep_shadows=args.check_keep_shadows, check_keep_large=args.check_keep_large)))
     return 0

@@ -110,13 +110,13 @@ def with_observed_bound_noise(rec, factor: float):
     generator.load_state_dict(rec.generator.state_dict())
     return Reconstructor(generator, cfg, rec.meta, device=rec.device, tta=rec.tta, self_check=rec.self_check,
                          check_reach=rec.check_reach, check_sigma=rec.check_sigma, check_keep_far=rec.check_keep_far,
-                         centre_cells=rec.centre_cells, check_keep_shadows=rec.check_keep_shadows)
+                         centre_cells=rec.centre_cells, check_keep_shadows=rec.check_keep_shadows, check_keep_large=rec.check_keep_large)
 
 
 def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibrate: int = 256, device=None, self_check: bool = False,
                   check_reach: bool = False, check_sigma: bool = False, check_membrane: bool = False,
                   check_keep_far: bool = False, observed_bound_noise: float | None = None, check_cycles: int = 0,
-                  check_keep_shadows: bool = False) -> dict:
+                  check_keep_shadows: bool = False, check_keep_large: bool = False) -> dict:
     """Write the generator of ``checkpoint`` (a training checkpoint or a ``Reconstructor`` file)
     to ``out`` as a ``Reconstructor`` file (fp16 weights, model config, run config); with
     ``calibrate`` > 0 and an uncertainty head, first fit its ``sigma_scale`` on ``calibrate``
@@ -137,6 +137,9 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     ``check_keep_shadows``: the check keeps the net's correction whole in the scan's shadows
     unless its cells refute the scan's horizon (``meta["check_keep_shadows"]``,
     ``inference/shadows.py``); needs ``self_check``.
+    ``check_keep_large``: the check keeps a correction of an obstacle's size whole on the
+    unobserved cells unless its hidden cells measure such corrections (``meta["check_keep_large"]``,
+    ``selfcheck.large_weight``); needs ``self_check``.
 
     ``observed_bound_noise`` (None: as the file's model is): the generator's bound on observed
     cells widened to that many times each scan's noise (``model.observed_bound_noise``; it holds
@@ -146,7 +149,7 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     (:func:`fit_unresolved_sigma_scale` on the same pairs, checked as the file will check).
 
     Returns ``{"out", "bytes", "step", "sigma_scale", "sigma_scale_unresolved", "observed_bound_noise", "self_check", "check_reach", "check_sigma", "check_membrane",
-    "check_keep_far", "check_cycles", "check_keep_shadows"}``
+    "check_keep_far", "check_cycles", "check_keep_shadows", "check_keep_large"}``
     (``sigma_scale`` None if not fitted).
     """
     if isinstance(calibrate, bool) or not isinstance(calibrate, int) or calibrate < 0:
@@ -166,6 +169,8 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
         raise ValueError("check_cycles: needs self_check (the cycles solve the self-check's thin plates further)")
     if check_keep_shadows and not self_check:
         raise ValueError("check_keep_shadows: needs self_check (it sets the self-check's weight in the scan's shadows)")
+    if check_keep_large and not self_check:
+        raise ValueError("check_keep_large: needs self_check (it sets the self-check's weight of the large corrections)")
     if check_sigma and not self_check:
         raise ValueError("check_sigma: needs self_check (the sigma is scaled on the self-check's cells)")
     rec = Reconstructor.load(checkpoint, device=device, self_check=False)
@@ -188,6 +193,7 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
     rec.meta["check_tensions"] = list(CANDIDATE_TENSIONS if check_membrane else THIN_PLATE_ONLY)
     rec.meta["check_cycles"] = int(check_cycles)
     rec.meta["check_keep_shadows"] = bool(check_keep_shadows)
+    rec.meta["check_keep_large"] = bool(check_keep_large)
     if not check_sigma:
         rec.meta.pop("sigma_scale_unresolved", None)
     elif calibrate:  # the fallback of the maps the check cannot resolve, fitted on them as the file checks them
@@ -203,4 +209,4 @@ def package_model(checkpoint: str | os.PathLike, out: str | os.PathLike, calibra
             "observed_bound_noise": rec.model_config.observed_bound_noise,
             "self_check": bool(self_check), "check_reach": bool(check_reach), "check_sigma": bool(check_sigma),
             "check_membrane": bool(check_membrane), "check_keep_far": bool(check_keep_far), "check_cycles": int(check_cycles),
-            "check_keep_shadows": bool(check_keep_shadows)}
+            "check_keep_shadows": bool(check_keep_shadows), "check_keep_large": bool(check_keep_large)}

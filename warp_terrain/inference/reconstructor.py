@@ -20,7 +20,7 @@ from ..models.uncertainty import split_output
 from ..sim.device import resolve_device
 from ..sim.projection import cell_offsets, check_map, project_points
 from .pointclouds import check_points
-from .selfcheck import SHADOW_MARGIN, THIN_PLATE_ONLY, Regimes, check_cells, checked_maps, resolved_sigma_factor, scan_noise
+from .selfcheck import LARGE_CORRECTION, SHADOW_MARGIN, THIN_PLATE_ONLY, Regimes, check_cells, checked_maps, resolved_sigma_factor, scan_noise
 
 PRETRAINED = "reconstructor.pt"
 
@@ -93,7 +93,7 @@ class Reconstructor:
     def __init__(self, generator: torch.nn.Module, model_config: ModelConfig, meta: dict | None = None, device=None, tta: bool = True,
                  self_check: bool | None = None, check_reach: bool | None = None, check_sigma: bool | None = None,
                  check_keep_far: bool | None = None, centre_cells: bool | None = None, check_cycles: int | None = None,
-                 check_keep_shadows: bool | None = None):
+                 check_keep_shadows: bool | None = None, check_keep_large: bool | None = None):
         self.device = resolve_device(device)
         self.generator = generator.to(self.device).eval()
         if self.device == "cpu":
@@ -117,6 +117,8 @@ class Reconstructor:
         self.check_keep_far = setting("check_keep_far", check_keep_far)
         # the correction kept whole in the scan's shadows, where the check's cells (all seen) cannot measure it
         self.check_keep_shadows = setting("check_keep_shadows", check_keep_shadows)
+        # a correction of an obstacle's size kept whole off the scan, unless the check's hidden cells measure such ones
+        self.check_keep_large = setting("check_keep_large", check_keep_large)
         # each map's sigma scaled on the check's hidden cells
         self.check_sigma = setting("check_sigma", check_sigma)
         # the plain fills the check weighs beside the base fill, by tension (thin plate 0, membrane 1):
@@ -136,7 +138,8 @@ class Reconstructor:
     @classmethod
     def load(cls, path: str | os.PathLike | None = None, device=None, tta: bool = True, self_check: bool | None = None,
              check_reach: bool | None = None, check_sigma: bool | None = None, check_keep_far: bool | None = None,
-             centre_cells: bool | None = None, check_cycles: int | None = None, check_keep_shadows: bool | None = None) -> Reconstructor:
+             centre_cells: bool | None = None, check_cycles: int | None = None, check_keep_shadows: bool | None = None,
+             check_keep_large: bool | None = None) -> Reconstructor:
         path = pretrained_path() if path is None else Path(path)
         if not path.is_file():
             raise ValueError(f"model file {str(path)!r} does not exist")
@@ -155,7 +158,7 @@ class Reconstructor:
         generator = build_generator(cfg)
         generator.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in weights.items()})
         return cls(generator, cfg, meta, device, tta, self_check, check_reach, check_sigma, check_keep_far, centre_cells, check_cycles,
-                   check_keep_shadows)
+                   check_keep_shadows, check_keep_large)
 
     def save(self, path: str | os.PathLike, half: bool = True) -> None:
         """Write the generator (fp16 weights by default: half the size) and its config, atomically."""
@@ -193,7 +196,9 @@ class Reconstructor:
         with ``check_keep_far`` to the whole correction. With ``check_keep_shadows`` the correction
         is also kept whole in the scan's shadows (``inference/shadows.py``), where the check's
         cells, all seen by the sensor, cannot measure it, unless the check's cells refute the
-        scan's horizon (``selfcheck.shadow_weight``).
+        scan's horizon (``selfcheck.shadow_weight``). With ``check_keep_large`` a correction of an
+        obstacle's size (``selfcheck.LARGE_CORRECTION``) is kept whole on the unobserved cells, unless
+        the check's hidden cells carry such corrections and so measure them (``selfcheck.large_weight``).
         With ``check_sigma`` the sigma of each map is scaled so that 68 % of the checked cells'
         errors (the thinned scan's map, blended as the full one is) lie within 1 sigma: the
         factor of the random cells near the scan, that of the outer cells far from it (with the reach);
@@ -239,7 +244,8 @@ class Reconstructor:
         heights, sigmas, fills = self._predict(both_scans, both_masks, self.check_tensions, noise=noise)
         regimes = Regimes(hidden, outer if self.check_reach else None, masks=(mask, thinned))
         height, height_thinned = checked_maps(fills, heights, scan, mask, thinned, regimes, self.check_membrane,
-                                              self.check_keep_far, SHADOW_MARGIN * noise if self.check_keep_shadows else None)
+                                              self.check_keep_far, SHADOW_MARGIN * noise if self.check_keep_shadows else None,
+                                              LARGE_CORRECTION if self.check_keep_large else None)
         sigma, factors = None if sigmas is None else sigmas[:n], None
         if sigma is not None and self.check_sigma:  # measured on the cells the thinned map did not see, per regime
             factor = partial(resolved_sigma_factor, noise=noise[:n])  # about the ground, not the scan's noise

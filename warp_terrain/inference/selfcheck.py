@@ -45,6 +45,17 @@ fill lies below the sensor's line of sight over the observed cells in front of t
 scan refutes its own horizon: a 2.5-D map of returns under a canopy or past a pole's top puts
 cells the sensor saw in shadow, and where ``SHADOW_REFUTED`` of the check's cells fall in the
 thinned scan's shadows the correction there is weighed on them instead (``shadow_weight``).
+
+Nor does the check see the corrections that matter most: the net digs a pit or raises an
+obstacle's hidden side by decimetres, 2-7 cells from the scan, while on the check's cells (open
+ground next to kept cells) its correction is a few centimetres, which set the map's weight
+(stop 32: 97 % of the pits' error lies inside them). With ``keep_large`` (``checked_maps``'
+``large``) a correction of an obstacle's size (``LARGE_CORRECTION``, either way) is kept whole on
+the map's unobserved cells, unless ``LARGE_REFUTED`` or more of the check's random hidden cells
+carry one in the thinned scan's map: the scan then measures such corrections, and they keep
+their least-squares weight on those cells instead (``kept_weight``). The outer cells do not
+count: they leave gaps as wide as the outer rings' spacing, where the net's large corrections
+are the far field's, which ``keep_far`` keeps whole whatever they say.
 """
 
 from __future__ import annotations
@@ -69,6 +80,12 @@ SHADOW_MARGIN = 3.0
 #: The check's cells (hidden, so seen by the sensor) in the thinned scan's shadows from which the
 #: horizon counts as refuted on a scan (stop 41: 4 and 16 score alike).
 SHADOW_REFUTED = 8
+#: A correction at least this large (metres, up or down) is an obstacle's or a pit's: the height at
+#: which the scores count a cell as one (``evaluation.metrics.OBSTACLE_THRESHOLD``).
+LARGE_CORRECTION = 0.3
+#: The check's random hidden cells with a large correction from which the scan measures them
+#: (stop 42: 8 and 16 score alike).
+LARGE_REFUTED = 8
 
 
 def hidden_cells(mask: torch.Tensor, share: float = CHECK_SHARE, seed: int = CHECK_SEED) -> torch.Tensor:
@@ -170,8 +187,8 @@ class Regimes:
 
 
 def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor,
-                 regimes: Regimes, membrane: bool, keep_far: bool, shadow_margin: torch.Tensor | None = None
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
+                 regimes: Regimes, membrane: bool, keep_far: bool, shadow_margin: torch.Tensor | None = None,
+                 large: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(map, thinned map)``, each (N, 1, S, S): the checked map of the full scan and, blended
     the same way, the one of the thinned scan (what the check's cells are scored on).
 
@@ -185,22 +202,42 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
 
     ``shadow_margin`` (2N, 1, 1, 1) metres, both scans' (None: off): the correction is kept
     whole in each map's shadows (:func:`shadow_weight`), the horizon of each observed cell
-    lowered by its scan's margin."""
+    lowered by its scan's margin. ``large`` metres (None: off; ``LARGE_CORRECTION``): a
+    correction at least that large is kept whole on each map's unobserved cells unless the
+    check's random hidden cells measure such corrections (:func:`large_weight`)."""
     n = scan.shape[0]
     fill, fill_thinned = checked_fills(fills, scan, mask, thinned, regimes, membrane)
     w = regimes.weight(model[n:], fill_thinned, scan)
     if keep_far and w[1] is not None:
         w = (w[0], torch.ones_like(w[1]))
-    if shadow_margin is None:
-        return regimes.apply(w, fill, model[:n], mask), regimes.apply(w, fill_thinned, model[n:], thinned)
-    shadows = shadow_cells(torch.cat([scan, scan * thinned]), torch.cat([mask, thinned]), torch.cat([fill, fill_thinned]),
-                           shadow_margin).split(n)
-    keep = shadow_weight(model[n:], fill_thinned, scan, shadows[1] & regimes.checked)
+    fills_both, observed_both = (fill, fill_thinned), (mask, thinned)
+    kept = [[] for _ in fills_both]  # per map: (cells, the weight they keep at least)
+    if shadow_margin is not None:
+        shadows = shadow_cells(torch.cat([scan, scan * thinned]), torch.cat(observed_both), torch.cat(fills_both), shadow_margin).split(n)
+        keep = shadow_weight(model[n:], fill_thinned, scan, shadows[1] & regimes.checked)
+        for cells, out in zip(shadows, kept):
+            out.append((cells, keep))
+    if large is not None:
+        keep = large_weight(model[n:], fill_thinned, scan, large_cells(model[n:], fill_thinned, large) & regimes.hidden)
+        for f, m, observed, out in zip(fills_both, model.split(n), observed_both, kept):
+            out.append((large_cells(m, f, large) & (observed <= 0), keep))
     maps = []
-    for shadow, f, m, observed in zip(shadows, (fill, fill_thinned), model.split(n), (mask, thinned)):
+    for f, m, observed, cells_kept in zip(fills_both, model.split(n), observed_both, kept):
         weight = regimes.at(w, observed)
-        maps.append(f + torch.where(shadow, torch.maximum(weight, keep), weight) * (m - f))
+        for cells, keep in cells_kept:
+            weight = torch.where(cells, torch.maximum(weight, keep), weight)
+        maps.append(f + weight * (m - f))
     return maps[0], maps[1]
+
+
+def kept_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor, cells: torch.Tensor, refuted_at: int) -> torch.Tensor:
+    """(B, 1, 1, 1) the share of the net's correction a map keeps (at least) where the check
+    cannot measure it: all of it, unless ``refuted_at`` or more of the check's ``cells`` are of
+    that kind; the scan then measures it, and they keep the least-squares weight of the
+    correction on those cells (``correction_weight``)."""
+    refuted = cells.sum(dim=(2, 3), keepdim=True) >= refuted_at
+    measured_weight = correction_weight(model, fill, measured, cells)
+    return torch.where(refuted, measured_weight, torch.ones_like(measured_weight))
 
 
 def shadow_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor, seen_in_shadow: torch.Tensor) -> torch.Tensor:
@@ -208,10 +245,21 @@ def shadow_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tenso
     check's own weight where that is more): all of it, unless ``SHADOW_REFUTED`` or more of the
     check's cells (all seen by the sensor) lie in the thinned scan's shadows. The horizon is then
     refuted on this scan (returns under an overhang: a canopy, a pole, a car's roof), and the
-    shadows keep the least-squares weight of the correction on those cells (``correction_weight``)."""
-    refuted = seen_in_shadow.sum(dim=(2, 3), keepdim=True) >= SHADOW_REFUTED
-    measured_weight = correction_weight(model, fill, measured, seen_in_shadow)
-    return torch.where(refuted, measured_weight, torch.ones_like(measured_weight))
+    shadows keep the least-squares weight of the correction on those cells (:func:`kept_weight`)."""
+    return kept_weight(model, fill, measured, seen_in_shadow, SHADOW_REFUTED)
+
+
+def large_cells(model: torch.Tensor, fill: torch.Tensor, large: float) -> torch.Tensor:
+    """(B, 1, S, S) bool: cells where the net's correction to ``fill`` is at least ``large`` metres, up or down."""
+    return (model - fill).abs() >= large
+
+
+def large_weight(model: torch.Tensor, fill: torch.Tensor, measured: torch.Tensor, large_hidden: torch.Tensor) -> torch.Tensor:
+    """(B, 1, 1, 1) the share of its large corrections a map keeps on its unobserved cells (at
+    least): all, unless ``LARGE_REFUTED`` or more of the check's random hidden cells carry one
+    (``large_hidden``): they then keep the least-squares weight of the correction on those cells
+    (:func:`kept_weight`)."""
+    return kept_weight(model, fill, measured, large_hidden, LARGE_REFUTED)
 
 
 def checked_fills(fills: torch.Tensor, scan: torch.Tensor, mask: torch.Tensor, thinned: torch.Tensor, regimes: Regimes,

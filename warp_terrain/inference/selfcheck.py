@@ -84,7 +84,7 @@ SHADOW_REFUTED = 8
 #: which the scores count a cell as one (``evaluation.metrics.OBSTACLE_THRESHOLD``).
 LARGE_CORRECTION = 0.3
 #: The check's random hidden cells with a large correction from which the scan measures them
-#: (stop 42: 8 and 16 score alike).
+#: (stop 42: 4, 8 and 16 score alike).
 LARGE_REFUTED = 8
 
 

@@ -210,7 +210,7 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
     w = regimes.weight(model[n:], fill_thinned, scan)
     if keep_far and w[1] is not None:
         w = (w[0], torch.ones_like(w[1]))
-    fills_both, observed_both = (fill, fill_thinned), (mask, thinned)
+    fills_both, models_both, observed_both = (fill, fill_thinned), model.split(n), (mask, thinned)
     kept = [[] for _ in fills_both]  # per map: (cells, the weight they keep at least)
     if shadow_margin is not None:
         shadows = shadow_cells(torch.cat([scan, scan * thinned]), torch.cat(observed_both), torch.cat(fills_both), shadow_margin).split(n)
@@ -218,11 +218,12 @@ def checked_maps(fills: torch.Tensor, model: torch.Tensor, scan: torch.Tensor, m
         for cells, out in zip(shadows, kept):
             out.append((cells, keep))
     if large is not None:
-        keep = large_weight(model[n:], fill_thinned, scan, large_cells(model[n:], fill_thinned, large) & regimes.hidden)
-        for f, m, observed, out in zip(fills_both, model.split(n), observed_both, kept):
-            out.append((large_cells(m, f, large) & (observed <= 0), keep))
+        larges = [large_cells(m, f, large) for m, f in zip(models_both, fills_both)]
+        keep = large_weight(model[n:], fill_thinned, scan, larges[1] & regimes.hidden)
+        for cells, observed, out in zip(larges, observed_both, kept):
+            out.append((cells & (observed <= 0), keep))
     maps = []
-    for f, m, observed, cells_kept in zip(fills_both, model.split(n), observed_both, kept):
+    for f, m, observed, cells_kept in zip(fills_both, models_both, observed_both, kept):
         weight = regimes.at(w, observed)
         for cells, keep in cells_kept:
             weight = torch.where(cells, torch.maximum(weight, keep), weight)

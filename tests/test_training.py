@@ -205,6 +205,9 @@ def test_init_from_starts_the_generator_from_a_model_file_and_refuses_another_ne
     assert not (tmp_path / "other").exists()
     with pytest.raises(ValueError, match="train.init_from"):
         run_config(*TINY, f"train.init_from={tmp_path / 'missing.pt'}")
+    # a recorded recipe read where its files are absent: composed as written, not looked for
+    from warp_terrain.compose import compose_run
+    assert compose_run([*TINY, f"train.init_from={tmp_path / 'missing.pt'}"], files=False).train.init_from == str(tmp_path / "missing.pt")
 
     # a run that adds the screened fill as an input starts from the file's net widened by a zero column
     residual = ["model=fill_residual", *TINY[1:], "model.dropout=0.0", "model.refine=1"]

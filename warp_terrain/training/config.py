@@ -73,7 +73,9 @@ class TrainConfig:
     init_from: str = ""
     cell_dropout: float = 0.0
 
-    def validate(self) -> None:
+    def validate(self, files: bool = True) -> None:
+        """Check every field; ``files=False`` does not look for the folder and the model file
+        ``dataset`` and ``init_from`` name (a recorded recipe read where they are absent)."""
         for key in ("steps", "batch_size", "val_every", "val_size", "log_every", "image_every", "checkpoint_every", "prefetch"):
             value = getattr(self, key)
             require(isinstance(value, int) and not isinstance(value, bool) and value >= 1, key, value, "must be an integer >= 1")
@@ -83,10 +85,10 @@ class TrainConfig:
         require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "device", self.device, "must be auto, cpu, cuda or cuda:N")
         require(isinstance(self.capture, bool), "capture", self.capture, "must be true or false")
         require(isinstance(self.dataset, str), "dataset", self.dataset, "must be a folder path or empty (the live stream)")
-        if self.dataset:
+        if self.dataset and files:
             require(Path(self.dataset).expanduser().is_dir(), "dataset", self.dataset, "no such folder (write one with `warp-terrain generate`)")
         require(isinstance(self.init_from, str), "init_from", self.init_from, "must be a model file, a checkpoint, pretrained, or empty")
-        if self.init_from and self.init_from != INIT_PRETRAINED:
+        if self.init_from and self.init_from != INIT_PRETRAINED and files:
             require(Path(self.init_from).expanduser().is_file(), "init_from", self.init_from,
                     "no such file (a model file, a training checkpoint, or pretrained for the shipped model)")
         resume = str(self.resume).strip()
@@ -115,10 +117,11 @@ class RunConfig:
 
 def validate_run(cfg: RunConfig, files: bool = True) -> RunConfig:
     """Check every section and their consistency; the error names the full key. ``files=False``
-    does not open the DEM rasters a config names (a recorded recipe read where they are absent)."""
+    does not open the files a config names (DEM rasters, scans, a training set, the weights to
+    start from: a recorded recipe read where they are absent)."""
     for section in ("terrain", "lidar", "data", "scans", "model", "train"):
         try:
-            getattr(cfg, section).validate(files) if section in ("terrain", "scans") else getattr(cfg, section).validate()
+            getattr(cfg, section).validate(files) if section in ("terrain", "scans", "train") else getattr(cfg, section).validate()
         except ValueError as err:
             raise ValueError(f"{section}.{err}") from None
     if cfg.model.name == "paper" and cfg.data.map_size != 121:

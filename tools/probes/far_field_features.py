@@ -94,7 +94,7 @@ def main():
     torch.set_num_threads(2)
     reconstructor.checked_maps = transplant.checked_maps
     rec = load_checked("shipped", tta=False)
-    sim = as_sim_config(compose_run(["experiment=pretrained"]))
+    sim = as_sim_config(compose_run(["experiment=pretrained_cycle1"]))
     rows = []
     for i in range(args.fit_size // 16):
         b = generate_batch(16, sim, seed=validation_seed(300 + i), device="cpu")

@@ -1,6 +1,6 @@
 """A sigma recalibrated by distance from the scan: one factor per distance bin (cells to the
 nearest observed cell), fitted after the check on validation pairs of the shipped recipe's own
-world (``experiment=pretrained``'s randomised world, the validation seeds: never trained on),
+world (``experiment=pretrained_cycle1``'s randomised world, the validation seeds: never trained on),
 so that 68 % of each bin's unobserved cells lie within 1 sigma; then applied to the sets of
 ``sigma_by_distance.py``, which the fit never sees. Prints the factors and, per set, the share
 within 1 sigma of the shipped check and of the recalibrated one, overall and per bin.
@@ -59,7 +59,7 @@ def main():
     parser.add_argument("--centred", action="store_true", help="the model given centred cells (models.centring)")
     args = parser.parse_args()
     rec = load_checked("shipped", tta=False)
-    sim = as_sim_config(compose_run(["experiment=pretrained"]))
+    sim = as_sim_config(compose_run(["experiment=pretrained_cycle1"]))
     fit = [(generate_batch(16, sim, seed=validation_seed(100 + i), device="cpu"), sim.data.map_cell) for i in range(args.fit_size // 16)]
     error, sigma, bins, mask = predicted(rec, fit, args.centred)
     ratio = error / sigma.clamp_min(1e-6)

@@ -332,8 +332,8 @@ def test_a_planted_pickle_payload_never_runs(tmp_path, loader):
 
 def test_the_shipped_model_was_trained_with_experiment_pretrained():
     """The run config recorded beside the shipped model is what `python train.py
-    experiment=pretrained` composes (only the progress bar, the resume flag and the torch threads may differ), and
-    the shipped weights are that model's."""
+    experiment=pretrained` composes (only the progress bar, the resume flag, the torch threads and
+    the path to the first cycle's weights may differ), and the shipped weights are that model's."""
     from omegaconf import OmegaConf
 
     from warp_terrain.inference.reconstructor import pretrained_path
@@ -348,6 +348,10 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
         # how the run was driven on its machine (progress bar, resumes, torch threads), not the recipe
         for key in ("progress", "resume", "threads"):
             cfg["train"].pop(key)
+    # where the first cycle's weights were read from: the recipe names its run folder; the shipped
+    # run read the first cycle's packaged file, shipped at the time (train.init_from=pretrained)
+    assert composed["train"].pop("init_from") == "outputs/pretrained_cycle1/checkpoints/latest.pt"
+    assert recorded["train"].pop("init_from") == "pretrained"
 
     def newer_keys_at_their_defaults(recorded, composed, defaults, where=""):
         """Keys the schema gained after the model was trained must sit at their defaults

@@ -10,7 +10,7 @@ import torch
 from conftest import ROOT, TINY_RUN, run_config
 from hydra import compose, initialize_config_module
 
-from warp_terrain.compose import CONFIG_MODULE, register_configs
+from warp_terrain.compose import CONFIG_MODULE, compose_run, register_configs
 from warp_terrain.core.torchfile import load_checkpoint
 from warp_terrain.data.seeds import VALIDATION_SEED_BASE, batch_seed
 from warp_terrain.data.stream import training_batches, validation_set
@@ -206,7 +206,6 @@ def test_init_from_starts_the_generator_from_a_model_file_and_refuses_another_ne
     with pytest.raises(ValueError, match="train.init_from"):
         run_config(*TINY, f"train.init_from={tmp_path / 'missing.pt'}")
     # a recorded recipe read where its files are absent: composed as written, not looked for
-    from warp_terrain.compose import compose_run
     assert compose_run([*TINY, f"train.init_from={tmp_path / 'missing.pt'}"], files=False).train.init_from == str(tmp_path / "missing.pt")
 
     # a run that adds the screened fill as an input starts from the file's net widened by a zero column
@@ -339,7 +338,6 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
     from warp_terrain.inference.reconstructor import pretrained_path
 
     recorded = OmegaConf.to_container(OmegaConf.load(pretrained_path().parent / "run_config.yaml"))
-    from warp_terrain.compose import compose_run
 
     # the recipe names real_data/'s Finland raster, which a clean checkout has not fetched
     composed = OmegaConf.to_container(OmegaConf.structured(compose_run(["experiment=pretrained"], files=False)))

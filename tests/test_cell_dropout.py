@@ -57,13 +57,13 @@ def test_a_training_step_thins_its_input_by_the_step_and_the_validation_set_is_n
             assert torch.equal(given[-1][:, :1], scan) and torch.equal(given[-1][:, 1:2], mask)
 
 
-def test_the_dropout_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_holes():
+def test_the_dropout_finetune_recipe_is_the_first_cycle_from_its_weights_with_holes():
     from warp_terrain.compose import compose_run
 
     tuned = compose_run(["experiment=dropout_finetune"], files=False)
-    shipped = compose_run(["experiment=pretrained"], files=False)
-    assert tuned.train.cell_dropout == 0.3 and shipped.train.cell_dropout == 0.0
+    cycle1 = compose_run(["experiment=pretrained_cycle1"], files=False)
+    assert tuned.train.cell_dropout == 0.3 and cycle1.train.cell_dropout == 0.0
     assert tuned.train.init_from == "pretrained" and tuned.train.steps == 3000 and tuned.model.lr_g == 1e-4
-    assert tuned.terrain == shipped.terrain and tuned.data == shipped.data and tuned.scans == shipped.scans
-    tuned.model.lr_g = shipped.model.lr_g
-    assert tuned.model == shipped.model
+    assert tuned.terrain == cycle1.terrain and tuned.data == cycle1.data and tuned.scans == cycle1.scans
+    tuned.model.lr_g = cycle1.model.lr_g
+    assert tuned.model == cycle1.model

@@ -224,13 +224,13 @@ def test_a_run_that_centres_trains_on_centred_cells_and_its_file_centres_clouds(
     assert rec.centre_cells and not Reconstructor.load(tmp_path / "run" / "checkpoints" / "latest.pt", centre_cells=False).centre_cells
 
 
-def test_the_centred_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_centred_cells():
+def test_the_centred_finetune_recipe_is_the_first_cycle_from_its_weights_with_centred_cells():
     from warp_terrain.compose import compose_run
 
     tuned = compose_run(["experiment=centred_finetune"], files=False)
-    shipped = compose_run(["experiment=pretrained"], files=False)
-    assert tuned.model.centre_cells and not shipped.model.centre_cells
+    cycle1 = compose_run(["experiment=pretrained_cycle1"], files=False)
+    assert tuned.model.centre_cells and not cycle1.model.centre_cells
     assert tuned.train.init_from == "pretrained" and tuned.model.lr_g == 1e-4
-    assert tuned.terrain == shipped.terrain and tuned.data == shipped.data and tuned.scans == shipped.scans
-    tuned.model.lr_g, tuned.model.centre_cells = shipped.model.lr_g, False
-    assert tuned.model == shipped.model
+    assert tuned.terrain == cycle1.terrain and tuned.data == cycle1.data and tuned.scans == cycle1.scans
+    tuned.model.lr_g, tuned.model.centre_cells = cycle1.model.lr_g, False
+    assert tuned.model == cycle1.model

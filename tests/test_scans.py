@@ -151,17 +151,17 @@ def test_training_on_a_scan_mix_runs_end_to_end(tmp_path):
     assert out["steps"] == 2 and np.isfinite(out["val_rmse_unobserved"])
 
 
-def test_the_scan_finetune_recipe_is_the_shipped_recipe_from_its_weights_with_real_scans():
+def test_the_scan_finetune_recipe_is_the_first_cycle_from_its_weights_with_real_scans():
     from warp_terrain.compose import compose_run
 
     tuned = compose_run(["experiment=scan_finetune"], files=False)
-    shipped = compose_run(["experiment=pretrained"], files=False)
+    cycle1 = compose_run(["experiment=pretrained_cycle1"], files=False)
     assert tuned.train.init_from == "pretrained" and tuned.train.steps == 3000 and tuned.model.lr_g == 1e-4
     assert tuned.scans.share == 0.25 and len(tuned.scans.files) == 7
     assert all(name.startswith("real_data/train_") for name in tuned.scans.files)  # never the suite's scans
-    assert tuned.terrain == shipped.terrain and tuned.data == shipped.data
-    tuned.model.lr_g = shipped.model.lr_g
-    assert tuned.model == shipped.model
+    assert tuned.terrain == cycle1.terrain and tuned.data == cycle1.data
+    tuned.model.lr_g = cycle1.model.lr_g
+    assert tuned.model == cycle1.model
 
 
 def test_a_scan_file_without_points_is_refused_before_any_work(tmp_path):

@@ -332,7 +332,8 @@ def test_a_planted_pickle_payload_never_runs(tmp_path, loader):
 def test_the_shipped_model_was_trained_with_experiment_pretrained():
     """The run config recorded beside the shipped model is what `python train.py
     experiment=pretrained` composes (only the progress bar, the resume flag, the torch threads and
-    the path to the first cycle's weights may differ), and the shipped weights are that model's."""
+    the path to the second cycle's weights may differ), and the shipped weights are that model's
+    net (averaged with the second cycle's, the same net; warp_terrain/pretrained/README.md)."""
     from omegaconf import OmegaConf
 
     from warp_terrain.inference.reconstructor import pretrained_path
@@ -346,10 +347,10 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
         # how the run was driven on its machine (progress bar, resumes, torch threads), not the recipe
         for key in ("progress", "resume", "threads"):
             cfg["train"].pop(key)
-    # where the first cycle's weights were read from: the recipe names its run folder; the shipped
-    # run read the first cycle's packaged file, shipped at the time (train.init_from=pretrained)
-    assert composed["train"].pop("init_from") == "outputs/pretrained_cycle1/checkpoints/latest.pt"
-    assert recorded["train"].pop("init_from") == "pretrained"
+    # where the second cycle's weights were read from: the recipe names its run folder, the shipped
+    # run the folder the second cycle ran in
+    assert composed["train"].pop("init_from") == "outputs/pretrained_cycle2/checkpoints/latest.pt"
+    assert recorded["train"].pop("init_from") == "outputs/second16k/checkpoints/latest.pt"
 
     def newer_keys_at_their_defaults(recorded, composed, defaults, where=""):
         """Keys the schema gained after the model was trained must sit at their defaults
@@ -370,3 +371,19 @@ def test_the_shipped_model_was_trained_with_experiment_pretrained():
     packaged = {k: v for k, v in rec.model_config.to_dict().items() if k not in UNWEIGHTED_FIELDS}
     assert packaged == {k: v for k, v in composed["model"].items() if k not in UNWEIGHTED_FIELDS}
     assert rec.meta["step"] == composed["train"]["steps"]
+
+
+def test_the_shipped_recipe_is_its_cycles_in_turn():
+    """Each cycle of the recipe is the one before it run again from its weights, with batches no
+    earlier cycle drew; the third also reaches higher mounts, and nothing else differs."""
+    cycle1, cycle2, shipped = (compose_run([f"experiment={name}"], files=False)
+                               for name in ("pretrained_cycle1", "pretrained_cycle2", "pretrained"))
+    assert (cycle1.train.init_from, cycle1.train.seed) == ("", 0)
+    assert (cycle2.train.init_from, cycle2.train.seed) == ("outputs/pretrained_cycle1/checkpoints/latest.pt", 1)
+    assert (shipped.train.init_from, shipped.train.seed) == ("outputs/pretrained_cycle2/checkpoints/latest.pt", 2)
+    assert cycle1.data.randomize.mount_height_max == cycle2.data.randomize.mount_height_max == 2.5
+    assert shipped.data.randomize.mount_height_max == 3.5
+    shipped.data.randomize.mount_height_max = 2.5
+    for cfg in (cycle1, cycle2, shipped):
+        cfg.train.init_from, cfg.train.seed = "", 0
+    assert cycle1 == cycle2 == shipped

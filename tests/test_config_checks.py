@@ -131,6 +131,7 @@ INVALID = {
     "data.randomize.mount_height_max": 1.0,  # below mount_height_min
     "data.randomize.range_noise_max": 1.0,
     "data.randomize.obstacle_probability": 1.5,
+    "data.randomize.obstacle_probabilities": {"pits": 1.5},
     "data.randomize.azimuth_step_min_deg": -0.1,
     "data.randomize.noise_max": -0.5,
     "data.randomize.dem_probability": 1.5,

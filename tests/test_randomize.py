@@ -45,3 +45,44 @@ def test_the_mount_height_is_drawn_in_its_range_and_widening_it_moves_nothing_el
 def test_a_fixed_mount_is_a_range_of_one_height():
     sim, _, _ = randomize(randomised_sim(mount_height_min=3.0, mount_height_max=3.0), 2, seed=5)
     assert sim.lidar.mount_height == 3.0
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_a_kind_of_obstacle_can_be_made_more_likely_without_moving_any_other_draw(seed):
+    """Each kind's uniform is drawn from the batch's stream whatever its threshold: raising the
+    pits' and ditches' probability (the negative-obstacle world) adds those kinds to some batches
+    and leaves every other draw of each batch as it was; 1 and 0 are always and never."""
+    base = randomised_sim()
+    p = base.data.randomize.obstacle_probability
+    a, amp_a, feat_a = randomize(base, 8, seed)
+    b, amp_b, feat_b = randomize(randomised_sim(obstacle_probabilities={"pits": 0.9, "ditches": 0.9}), 8, seed)
+    assert (amp_a == amp_b).all() and (feat_a == feat_b).all()
+    for kind in ("pits", "ditches"):
+        if getattr(a.terrain, kind).count_max > 0:  # drawn under p, so also under 0.9 > p
+            assert getattr(b.terrain, kind) == getattr(a.terrain, kind)
+    b_same = copy.deepcopy(b)
+    b_same.terrain.pits, b_same.terrain.ditches = a.terrain.pits, a.terrain.ditches
+    b_same.data.randomize = a.data.randomize
+    assert b_same == a
+    always, _, _ = randomize(randomised_sim(obstacle_probabilities={"pits": 1.0}), 8, seed)
+    never, _, _ = randomize(randomised_sim(obstacle_probabilities={"pits": 0.0}), 8, seed)
+    assert always.terrain.pits.count_min >= 1 and never.terrain.pits.count_max == 0
+    assert p == 0.4  # the recipes' default the other kinds keep
+
+
+def test_the_pits_and_ditches_share_follows_their_probability():
+    sim = randomised_sim(obstacle_probabilities={"pits": 0.8})
+    draws = [randomize(sim, 1, seed)[0].terrain for seed in range(400)]
+    pits = sum(t.pits.count_max > 0 for t in draws) / len(draws)
+    rocks = sum(t.rocks.count_max > 0 for t in draws) / len(draws)
+    assert 0.74 < pits < 0.86 and 0.33 < rocks < 0.47  # binomial(400): 3.5 standard deviations
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [({"craters": 0.5}, "unknown obstacle kind"), ({"pits": 1.5}, "must be in \\[0, 1\\]"), ({"pits": float("nan")}, "must be finite")],
+)
+def test_a_bad_obstacle_probability_is_named(value, message):
+    sim = randomised_sim(obstacle_probabilities=value)
+    with pytest.raises(ValueError, match=message):
+        sim.data.randomize.validate()

@@ -43,6 +43,11 @@ class RandomizeConfig:
     mount_height_max: float = 2.5
     range_noise_max: float = 0.03
     obstacle_probability: float = 0.4
+    # per obstacle kind, the probability that a batch gets that kind, in place of
+    # ``obstacle_probability`` (e.g. ``{pits: 0.8, ditches: 0.8}`` for a world richer in negative
+    # obstacles); kinds not named keep ``obstacle_probability``. Each kind's draw is taken from the
+    # batch's stream whatever its probability, so changing one moves no other draw.
+    obstacle_probabilities: dict[str, float] = field(default_factory=dict)
     azimuth_step_min_deg: float = 0.4
     noise_max: float = 0.0
     # probability that a batch's relief is real ground: windows of ``terrain.dem`` (its files,
@@ -69,6 +74,10 @@ class RandomizeConfig:
         require(0.0 <= self.noise_max <= 1.0, "randomize.noise_max", self.noise_max, "must be in [0, 1]")
         require(0.0 <= self.dem_probability <= 1.0, "randomize.dem_probability", self.dem_probability, "must be in [0, 1]")
         require(0.0 <= self.plain_probability <= 1.0, "randomize.plain_probability", self.plain_probability, "must be in [0, 1]")
+        for kind, p in self.obstacle_probabilities.items():
+            require(kind in OBSTACLE_KINDS, f"randomize.obstacle_probabilities.{kind}", p, f"unknown obstacle kind; choose from {', '.join(OBSTACLE_KINDS)}")
+            check_finite(f"randomize.obstacle_probabilities.{kind}", p)
+            require(0.0 <= p <= 1.0, f"randomize.obstacle_probabilities.{kind}", p, "must be in [0, 1]")
         require(self.azimuth_step_min_deg >= 0.0, "randomize.azimuth_step_min_deg", self.azimuth_step_min_deg, "must be >= 0")
 
 
@@ -100,7 +109,7 @@ def randomize(sim, batch: int, seed: int):
     out.lidar = lidar
     out.terrain.octaves = int(rng.integers(r.octaves_min, r.octaves_max + 1))
     for kind in OBSTACLE_KINDS:
-        chosen = rng.uniform() < r.obstacle_probability
+        chosen = rng.uniform() < r.obstacle_probabilities.get(kind, r.obstacle_probability)
         setattr(out.terrain, kind, copy.deepcopy(OBSTACLE_RANGES[kind]) if chosen else ObstacleConfig())
     if r.noise_max > 0:
         out.data.noise = float(rng.uniform(0.0, r.noise_max))

@@ -65,3 +65,21 @@ def test_the_result_shares_nothing_with_its_base_or_its_inputs():
     out = build(Outer, {"tags": names})
     out.tags.append("changed")
     assert names == ["q"]  # sequences become new lists
+
+
+@dataclasses.dataclass
+class Shares:
+    shares: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+def test_a_dict_field_from_a_dictconfig_is_a_plain_dict_of_its_value_type():
+    """Hydra hands a ``dict[str, float]`` field over as a ``DictConfig``: it becomes a plain dict
+    (manifests and checkpoints serialise it), ints become floats as for a float field."""
+    import json
+
+    from omegaconf import OmegaConf
+
+    out = build(Shares, OmegaConf.create({"shares": {"pits": 1, "ditches": 0.8}}))
+    assert type(out.shares) is dict and out.shares == {"pits": 1.0, "ditches": 0.8}
+    assert type(out.shares["pits"]) is float
+    assert json.loads(json.dumps(dataclasses.asdict(out))) == {"shares": {"pits": 1.0, "ditches": 0.8}}

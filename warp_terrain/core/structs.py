@@ -27,6 +27,10 @@ def _convert(value, kind, current, key: str):
         return float(value)
     if isinstance(value, Sequence) and not isinstance(value, (str, bytes)):
         return list(value)
+    if _is_mapping(value):  # a dict field (e.g. ``dict[str, float]``): a plain dict, its values converted
+        args = typing.get_args(kind)
+        item = args[1] if typing.get_origin(kind) is dict and len(args) == 2 else None
+        return {str(k): _convert(value[k], item, None, f"{key}.{k}") for k in value.keys()}
     return value
 
 

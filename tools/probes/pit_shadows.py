@@ -13,7 +13,7 @@ import argparse
 
 import torch
 
-from warp_terrain.evaluation.metrics import masked_rmse
+from warp_terrain.evaluation.metrics import OBSTACLE_THRESHOLD, masked_rmse
 from warp_terrain.evaluation.testsets import make_eval_set
 from warp_terrain.inference.predictor import reconstructor_predictor
 from warp_terrain.inference.reconstructor import Reconstructor
@@ -29,7 +29,7 @@ def main() -> None:
     torch.set_num_threads(1)
     ts = make_eval_set("negative_obstacles", 0.0, size=args.size, device="cpu")
     unobserved = ts.mask < 0.5
-    pits = unobserved & ((ts.ground - ts.target) > 0.3)
+    pits = unobserved & ((ts.ground - ts.target) > OBSTACLE_THRESHOLD)  # pit_recall's pit cells
     thin_plate = biharmonic_fill(ts.scan, ts.mask)
     raw = reconstructor_predictor(Reconstructor.load(None, device="cpu", self_check=False))(ts.scan, ts.mask)
     checked = reconstructor_predictor(Reconstructor.load(None, device="cpu", self_check=True))(ts.scan, ts.mask)
